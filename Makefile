@@ -1,0 +1,38 @@
+# ipm — run `make help` for the targets.
+SHELL := /bin/bash
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+TORCH_VERSION := 2.13.0
+
+.DEFAULT_GOAL := help
+
+help: ## list the targets
+	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet torch==$(TORCH_VERSION)
+	$(BIN)/python -m pip install --quiet -e '.[dev,viz,dist]'
+	@touch $(STAMP)
+
+install: $(STAMP) ## create .venv (torch 2.13 CPU first, then the project)
+
+demo: $(STAMP) ## run the main job on built-in data and print where the results are
+	$(BIN)/python -m ipm.demo results/demo
+
+test: $(STAMP) ## run the full test suite
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile
+
+lint: $(STAMP) ## ruff over the package and tests
+	$(BIN)/ruff check ipm tests benchmarks
+
+bench: $(STAMP) ## speed benchmarks, written under results/perf/
+	$(BIN)/python -m benchmarks.run results/perf
+
+clean: ## remove caches (keeps .venv)
+	rm -rf .pytest_cache .ruff_cache build *.egg-info
+
+.PHONY: help install demo test lint bench clean

@@ -1,0 +1,113 @@
+"""Helpers shared by the commands: errors, devices, parameter options, output."""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import numpy as np
+import torch
+import typer
+
+log = logging.getLogger("ipm")
+
+
+class UsageError(ValueError):
+    """Bad input from the user: reported as one line, exit code 2."""
+
+
+def error_line(msg: str) -> None:
+    sys.stderr.write(f"ipm: error: {msg}\n")
+    sys.stderr.flush()
+
+
+def setup_logging(verbose: bool = False) -> None:
+    from rich.logging import RichHandler
+
+    from rich.console import Console
+
+    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(message)s",
+                        handlers=[RichHandler(console=Console(stderr=True), show_path=False)], force=True)
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto`` -> cuda if available else cpu; ``cpu``; ``cuda`` (error if unavailable)."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cpu":
+        return torch.device("cpu")
+    if name == "cuda":
+        if not torch.cuda.is_available():
+            raise UsageError("--device cuda: no CUDA device is available here; use --device cpu or auto")
+        return torch.device("cuda")
+    raise UsageError(f"--device: expected auto, cpu or cuda, got {name!r}")
+
+
+def seed_everything(seed: int) -> np.random.Generator:
+    """Seed Python, NumPy (returned Generator), torch and nlopt."""
+    import random
+
+    random.seed(seed)
+    np.random.seed(seed % (2**32))
+    torch.manual_seed(seed)
+    try:
+        import nlopt
+
+        nlopt.srand(seed)
+    except ImportError:
+        pass
+    return np.random.default_rng(seed)
+
+
+# Typer option types shared by generate / jacobian / render / fit.
+PresetOpt = Annotated[str | None, typer.Option("--preset", help="start from a named preset of the generator")]
+ParamsOpt = Annotated[Path | None, typer.Option("--params", help="parameter file (JSON: {generator, params})")]
+SetOpt = Annotated[list[str] | None, typer.Option("--set", help="NAME=VALUE, repeatable")]
+RandomOpt = Annotated[bool, typer.Option("--random", help="sample parameters uniformly within their bounds")]
+SeedOpt = Annotated[int, typer.Option("--seed", help="random seed")]
+LibraryOpt = Annotated[list[Path] | None, typer.Option("--library", help="folder of macro node JSON files")]
+DeviceOpt = Annotated[str, typer.Option("--device", help="auto, cpu or cuda")]
+JsonOpt = Annotated[bool, typer.Option("--json", help="print JSON on stdout")]
+
+
+def resolve_params(gen, preset: str | None, params_file: Path | None, sets: list[str] | None,
+                   random: bool, seed: int) -> dict:
+    """Full validated parameter dict: defaults < preset < random < file < --set."""
+    from ipm.params import load_param_file, parse_assignment
+
+    values = gen.values(preset)
+    if random:
+        rng = seed_everything(seed)
+        values.update(gen.spec.random(rng))
+    if params_file is not None:
+        name, raw = load_param_file(params_file)
+        same = name in (None, gen.name) or (gen.kind == "sdf" and name == "sdftree")
+        if not same:
+            raise UsageError(f"parameter file {params_file} is for generator {name!r}, not {gen.name!r}")
+        values.update(raw)
+    for s in sets or []:
+        k, v = parse_assignment(s)
+        values[k] = v
+    return gen.spec.validate(values)
+
+
+def check_output(path: Path, allowed: tuple[str, ...]) -> Path:
+    if path.suffix.lower() not in allowed:
+        raise UsageError(f"output {path}: expected a suffix among {', '.join(allowed)}, got {path.suffix or '(none)'}")
+    if path.exists() and path.is_dir():
+        raise UsageError(f"output {path} is a folder; expected a file path")
+    return path
+
+
+def emit(obj, as_json: bool) -> None:
+    """Print a result on stdout: JSON or plain lines."""
+    if as_json:
+        sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
+    elif isinstance(obj, dict):
+        for k, v in obj.items():
+            sys.stdout.write(f"{k}: {v}\n")
+    else:
+        sys.stdout.write(f"{obj}\n")

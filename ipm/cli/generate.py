@@ -1,0 +1,71 @@
+"""``ipm generate GEN ... -o OUT.{obj,ply,stl,glb}``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ipm.cli.common import (
+    JsonOpt,
+    LibraryOpt,
+    ParamsOpt,
+    PresetOpt,
+    RandomOpt,
+    SeedOpt,
+    SetOpt,
+    UsageError,
+    check_output,
+    emit,
+    resolve_params,
+)
+
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def generate(
+        gen: Annotated[str, typer.Argument(help="generator name (dishes, building, meshtree, sdftree), "
+                                                "tree preset, or tree file (.json)")],
+        output: Annotated[Path, typer.Option("-o", "--output", help="mesh file: .obj, .ply, .stl or .glb")],
+        preset: PresetOpt = None,
+        params: ParamsOpt = None,
+        set_: SetOpt = None,
+        random: RandomOpt = False,
+        seed: SeedOpt = 0,
+        resolution: Annotated[int, typer.Option(help="marching-cubes samples along the longest side "
+                                                     "(SDF generators)")] = 128,
+        lod: Annotated[str | None, typer.Option(help="level of detail of mesh generators (e.g. low, "
+                                                     "medium, high)")] = None,
+        preview: Annotated[Path | None, typer.Option(help="also write a shaded preview PNG")] = None,
+        library: LibraryOpt = None,
+        json_out: JsonOpt = False,
+    ) -> None:
+        """Generate a mesh from a generator and parameters; write it with a .params.json sidecar."""
+        from ipm.generators import get_generator
+        from ipm.io.export import export_mesh, sidecar_path
+
+        check_output(output, MESH_SUFFIXES)
+        if preview is not None:
+            check_output(preview, (".png",))
+        g = get_generator(gen, library=[str(p) for p in library] if library else None)
+        values = resolve_params(g, preset, params, set_, random, seed)
+        if g.kind == "sdf":
+            from ipm.sdf.meshing import check_resolution
+
+            tree = g.tree.with_values(values)
+            check_resolution(resolution, *tree.bounds())
+        mesh = g.to_mesh(values, resolution=resolution, lod=lod)
+        if mesh.n_faces == 0:
+            raise UsageError(f"{gen}: these parameters give an empty shape (no surface inside the bounds)")
+        export_mesh(mesh, output, g.metadata(values))
+        result = {"mesh": str(output), "params": str(sidecar_path(output)), "vertices": mesh.n_verts,
+                  "faces": mesh.n_faces}
+        if preview is not None:
+            from ipm.render.preview import write_preview
+
+            write_preview(mesh, preview)
+            result["preview"] = str(preview)
+        emit(result, json_out)

@@ -1,0 +1,81 @@
+"""``ipm list generators|nodes|presets``."""
+
+from __future__ import annotations
+
+import sys
+from typing import Annotated
+
+import typer
+
+from ipm.cli.common import JsonOpt, LibraryOpt, UsageError, emit
+
+WHAT = ("generators", "nodes", "presets")
+
+
+def _generators() -> list[dict]:
+    from ipm.generators import all_generators
+
+    out = []
+    for name, factory in sorted(all_generators().items()):
+        g = factory()
+        out.append({"name": name, "kind": g.kind, "continuous": g.spec.n_continuous,
+                    "discrete": len(g.spec.discrete), "presets": sorted(g.presets),
+                    "description": g.description})
+    return out
+
+
+def _nodes() -> list[dict]:
+    from ipm.sdf.nodes import all_node_types
+
+    out = []
+    for name, cls in sorted(all_node_types().items()):
+        doc = (cls.__doc__ or "").strip().splitlines()
+        out.append({
+            "name": name, "dim": cls.dim or "2|3", "arity": "2+" if cls.arity is None else cls.arity,
+            "exact": bool(cls.exact), "macro": hasattr(cls, "template"),
+            "params": [p.name for p in cls.param_defs_for(None)],
+            "doc": doc[0] if doc else "",
+        })
+    return out
+
+
+def _presets() -> list[dict]:
+    from ipm.generators import all_generators
+    from ipm.generators.sdftree import tree_presets
+
+    out = [{"generator": "sdftree", "preset": name, "use": f"ipm generate {name}"} for name in tree_presets()]
+    for gname, factory in sorted(all_generators().items()):
+        for p in sorted(factory().presets):
+            out.append({"generator": gname, "preset": p, "use": f"ipm generate {gname} --preset {p}"})
+    return out
+
+
+def register(app: typer.Typer) -> None:
+    @app.command("list")
+    def list_cmd(
+        what: Annotated[str, typer.Argument(help="generators, nodes or presets")],
+        json_out: JsonOpt = False,
+        library: LibraryOpt = None,
+    ) -> None:
+        """List registered generators, SDF node types, or presets."""
+        if what not in WHAT:
+            raise UsageError(f"ipm list: expected one of {', '.join(WHAT)}, got {what!r}")
+        if library:
+            from ipm.sdf.complex import load_library
+            from ipm.sdf.nodes import _load_builtin_nodes
+
+            _load_builtin_nodes()
+            load_library([str(p) for p in library])
+        rows = {"generators": _generators, "nodes": _nodes, "presets": _presets}[what]()
+        if json_out:
+            emit(rows, True)
+            return
+        from rich.console import Console
+        from rich.table import Table
+
+        table = Table(title=f"ipm {what}")
+        for col in rows[0] if rows else []:
+            table.add_column(col)
+        for r in rows:
+            table.add_row(*(", ".join(map(str, v)) if isinstance(v, list) else str(v) for v in r.values()))
+        Console(file=sys.stdout, width=160).print(table)

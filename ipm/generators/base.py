@@ -1,0 +1,122 @@
+"""The generator interface and registry.
+
+A generator turns parameters into geometry. ``kind == "mesh"``: :meth:`Generator.mesh` returns a
+:class:`~ipm.types.TriMesh` whose vertices are smooth functions of ``theta`` (the continuous
+parameters) and whose faces depend only on the discrete values and the level of detail.
+``kind == "sdf"``: :meth:`Generator.sdf` returns signed distances at points. Either way
+:meth:`Generator.to_mesh` gives a mesh for export and pictures.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from typing import Any, Literal
+
+import torch
+
+from ipm.params import ParamSpec, Value
+from ipm.types import TriMesh
+
+GENERATORS: dict[str, Callable[[], Generator]] = {}
+
+
+def register_generator(name: str):
+    """Class or factory decorator: make ``name`` available to ``get_generator`` and the CLI."""
+
+    def deco(factory):
+        if name in GENERATORS:
+            raise ValueError(f"generator {name!r} is registered twice")
+        GENERATORS[name] = factory
+        return factory
+
+    return deco
+
+
+class Generator(ABC):
+    """Base of all generators. Subclasses set ``name``, ``kind``, ``spec`` and ``presets``."""
+
+    name: str = ""
+    kind: Literal["mesh", "sdf"] = "mesh"
+    spec: ParamSpec
+    presets: Mapping[str, Mapping[str, Value]] = {}
+    description: str = ""
+
+    # -- values --------------------------------------------------------------------------------
+    def values(self, preset: str | None = None, overrides: Mapping[str, object] | None = None) -> dict:
+        """Validated full parameter dict: defaults, then a preset, then overrides."""
+        base = dict(self.spec.defaults())
+        if preset is not None:
+            if preset not in self.presets:
+                raise ValueError(f"unknown preset {preset!r} for {self.name}; "
+                                 f"known: {', '.join(sorted(self.presets)) or '(none)'}")
+            base.update(self.presets[preset])
+        base.update(overrides or {})
+        return self.spec.validate(base)
+
+    def split(self, values: Mapping[str, Value], dtype=torch.float64, device=None):
+        """``(theta (n,), discrete dict)`` from a validated dict."""
+        return self.spec.to_vector(values, dtype, device), self.spec.discrete_values(values)
+
+    # -- geometry ------------------------------------------------------------------------------
+    def mesh(self, theta: torch.Tensor, discrete: Mapping[str, int], lod: Any = None) -> TriMesh:
+        """Mesh generators: vertices differentiable in ``theta: (n,)``."""
+        raise TypeError(f"{self.name} is an SDF generator; use sdf() or to_mesh()")
+
+    def sdf(self, theta: torch.Tensor, points: torch.Tensor, discrete: Mapping[str, int]) -> torch.Tensor:
+        """SDF generators: distances ``(...)`` at ``points: (..., 3)``, negative inside."""
+        raise TypeError(f"{self.name} is a mesh generator; use mesh()")
+
+    @abstractmethod
+    def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None,
+                lod: Any = None) -> TriMesh:
+        """A mesh for export and pictures (SDF generators mesh by marching cubes at ``resolution``)."""
+
+    def metadata(self, values: Mapping[str, Value]) -> dict:
+        """What travels with exported meshes (GLB extras and the ``.params.json`` sidecar)."""
+        return {"generator": self.name, "params": dict(values)}
+
+
+def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
+    """A generator by registry name, or an SDF tree generator from a ``.json`` tree file or a shipped
+    tree preset name. ``ValueError`` lists what is available."""
+    _load_builtin_generators()
+    if library:
+        from ipm.sdf.complex import load_library
+
+        load_library(library)
+    if name in GENERATORS:
+        return GENERATORS[name]()
+    from pathlib import Path
+
+    from ipm.generators.sdftree import SdfTreeGenerator, tree_presets
+
+    if name.endswith(".json") or Path(name).is_file():
+        return SdfTreeGenerator.from_file(name)
+    if name in tree_presets():
+        return SdfTreeGenerator.from_preset(name)
+    raise ValueError(f"unknown generator {name!r}; registered: {', '.join(sorted(GENERATORS))}; "
+                     f"tree presets: {', '.join(sorted(tree_presets()))}; or pass a tree file (.json)")
+
+
+_LOADED = False
+
+
+def _load_builtin_generators() -> None:
+    global _LOADED
+    if _LOADED:
+        return
+    _LOADED = True
+    import importlib
+    import pkgutil
+
+    import ipm.generators as pkg
+
+    for mod in pkgutil.iter_modules(pkg.__path__):
+        if mod.name != "base":
+            importlib.import_module(f"ipm.generators.{mod.name}")
+
+
+def all_generators() -> dict[str, Callable[[], Generator]]:
+    _load_builtin_generators()
+    return dict(GENERATORS)

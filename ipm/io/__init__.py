@@ -1,0 +1,1 @@
+"""Files: atomic writes, mesh export, masks and run folders."""

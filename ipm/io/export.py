@@ -1,0 +1,72 @@
+"""Mesh export through trimesh (``process=False`` keeps vertex order = Jacobian row order).
+
+Formats are chosen by suffix from a registry. GLB files carry ``{generator, params, ipm_version}`` in
+their extras; every export also writes ``<name>.params.json`` beside the mesh.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+from ipm.io.atomic import atomic_path, write_text
+from ipm.types import TriMesh
+
+EXPORTERS: dict[str, Callable] = {}
+
+
+def exporter(*suffixes: str):
+    def deco(fn):
+        for s in suffixes:
+            EXPORTERS[s] = fn
+        return fn
+    return deco
+
+
+@exporter(".obj", ".ply", ".stl")
+def _export_plain(tm, path: Path, meta: dict) -> None:
+    tm.export(str(path), file_type=_kind(path))
+
+
+@exporter(".glb")
+def _export_glb(tm, path: Path, meta: dict) -> None:
+    from trimesh.exchange.gltf import export_glb
+
+    scene = tm.scene()
+    scene.metadata.update(meta)  # written as the scene's extras
+    path.write_bytes(export_glb(scene))
+
+
+def _kind(path: Path) -> str:
+    # the temporary file ends in ".tmp"; the real format is the suffix before it
+    return path.name.split(".")[-2] if path.name.endswith(".tmp") else path.suffix.lstrip(".")
+
+
+def sidecar_path(path: str | Path) -> Path:
+    path = Path(path)
+    return path.with_name(path.stem + ".params.json")
+
+
+def export_mesh(mesh: TriMesh, path: str | Path, metadata: dict | None = None, *,
+                sidecar: bool = True) -> Path:
+    """Write ``mesh`` to ``path`` (suffix: .obj, .ply, .stl or .glb), atomically.
+
+    ``metadata`` (generator, params) goes into GLB extras and the ``.params.json`` sidecar.
+    """
+    from ipm import __version__
+
+    path = Path(path)
+    fmt = path.suffix.lower()
+    if fmt not in EXPORTERS:
+        raise ValueError(f"output {path}: expected a suffix among {', '.join(sorted(EXPORTERS))}, got {fmt or '(none)'}")
+    if mesh.n_faces == 0:
+        raise ValueError("the mesh is empty (no faces): nothing to export")
+    meta = dict(metadata or {})
+    meta["ipm_version"] = __version__
+    tm = mesh.to_trimesh()
+    with atomic_path(path, suffix=fmt + ".tmp") as tmp:
+        EXPORTERS[fmt](tm, tmp, meta)
+    if sidecar:
+        write_text(sidecar_path(path), json.dumps(meta, indent=2) + "\n")
+    return path

@@ -1,0 +1,154 @@
+"""Jacobians of generator outputs with respect to their parameters (torch.func), and a float64
+finite-difference check.
+
+SDF generators: ``f(theta (n,), points (N, 3)) -> (N,)``; the Jacobian is ``(N, n + 3)``: one row per
+point, the derivatives with respect to every continuous parameter, then to the point's x, y, z.
+Every output depends on its own point only, which the reverse mode exploits: ``vmap`` of a per-point
+gradient computes all N rows in one batched backward pass, however large n is. The forward mode
+pushes n + 3 tangents through one batched evaluation.
+
+Mesh generators: ``f(theta (n,)) -> verts (V, 3)``; the Jacobian is ``(3V, n)`` (rows x0, y0, z0, x1, ...).
+Forward mode is the natural choice (3V outputs, n inputs).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Literal
+
+import torch
+from torch.func import grad, jacfwd, jacrev, jvp, vmap
+
+Mode = Literal["auto", "fwd", "rev"]
+MODES = ("auto", "fwd", "rev")
+
+SdfFn = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+MeshFn = Callable[[torch.Tensor], torch.Tensor]
+
+# Below this many columns the forward mode's batched tangents are cheaper than per-point gradients
+# (measured by `make bench`, results/perf/jacobian.md).
+FWD_MAX_COLUMNS = 4
+
+
+def _check_mode(mode: str) -> None:
+    if mode not in MODES:
+        raise ValueError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
+
+
+def sdf_jacobian(f: SdfFn, theta: torch.Tensor, points: torch.Tensor, mode: Mode = "auto",
+                 chunk: int = 65536) -> torch.Tensor:
+    """Jacobian ``(N, n + 3)`` of an SDF with respect to ``theta: (n,)`` and ``points: (N, 3)``.
+
+    Points are processed ``chunk`` at a time to bound memory. dtype follows ``points``.
+    """
+    _check_mode(mode)
+    if points.ndim != 2 or points.shape[-1] != 3:
+        raise ValueError(f"points: expected (N, 3), got {tuple(points.shape)}")
+    theta = theta.to(points.dtype)
+    n = theta.shape[0]
+    if mode == "auto":
+        mode = "fwd" if n + 3 <= FWD_MAX_COLUMNS else "rev"
+    rows = _sdf_jac_fwd if mode == "fwd" else _sdf_jac_rev
+    return torch.cat([rows(f, theta, points[i:i + chunk]) for i in range(0, len(points), chunk)])
+
+
+def _sdf_jac_rev(f: SdfFn, theta: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
+    def one(th, p):
+        return f(th, p)
+
+    g_theta, g_p = vmap(grad(one, argnums=(0, 1)), in_dims=(None, 0))(theta, pts)
+    return torch.cat([g_theta, g_p], 1)
+
+
+def _sdf_jac_fwd(f: SdfFn, theta: torch.Tensor, pts: torch.Tensor) -> torch.Tensor:
+    n, N = theta.shape[0], pts.shape[0]
+    k = n + 3
+    eye = torch.eye(k, dtype=pts.dtype, device=pts.device)
+    t_theta = eye[:, :n]                                    # (k, n)
+    t_pts = eye[:, n:][:, None, :].expand(k, N, 3)          # (k, N, 3): same tangent for every point
+
+    def push(tt, tp):
+        return jvp(f, (theta, pts), (tt, tp))[1]
+
+    # .to(): tangents can come out float64 for float32 inputs (see ipm.sdf._math.like)
+    return vmap(push)(t_theta, t_pts).T.to(pts.dtype).contiguous()        # (N, k)
+
+
+def mesh_jacobian(f: MeshFn, theta: torch.Tensor, mode: Mode = "auto") -> torch.Tensor:
+    """Jacobian ``(3V, n)`` of vertex positions ``f(theta) -> (V, 3)``."""
+    _check_mode(mode)
+
+    def flat(th):
+        return f(th).reshape(-1)
+
+    if mode == "rev":
+        return jacrev(flat)(theta)
+    return jacfwd(flat)(theta)
+
+
+@dataclass(frozen=True)
+class JacobianCheck:
+    """Result of a finite-difference check: ``max_rel_error`` is max |J - J_fd| / max(|J_fd|, 1)."""
+
+    max_rel_error: float
+    max_abs_error: float
+    worst: tuple[int, int]
+    step: float
+
+    def ok(self, tol: float = 1e-6) -> bool:
+        return self.max_rel_error <= tol
+
+
+def _compare(J: torch.Tensor, J_fd: torch.Tensor, step: float) -> JacobianCheck:
+    diff = (J.double() - J_fd).abs()
+    rel = diff / J_fd.abs().clamp(min=1.0)
+    flat = int(rel.argmax()) if rel.numel() else 0
+    worst = (flat // rel.shape[1], flat % rel.shape[1]) if rel.numel() else (0, 0)
+    return JacobianCheck(float(rel.max()) if rel.numel() else 0.0,
+                         float(diff.max()) if diff.numel() else 0.0, worst, step)
+
+
+@torch.no_grad()
+def sdf_fd_jacobian(f: SdfFn, theta: torch.Tensor, points: torch.Tensor, step: float = 1e-6) -> torch.Tensor:
+    """Central differences in float64, ``(N, n + 3)`` (2(n + 3) evaluations)."""
+    theta, points = theta.double(), points.double()
+    cols = []
+    for j in range(theta.shape[0]):
+        e = torch.zeros_like(theta)
+        e[j] = step
+        cols.append((f(theta + e, points) - f(theta - e, points)) / (2 * step))
+    for k in range(3):
+        e = torch.zeros(3, dtype=torch.float64, device=points.device)
+        e[k] = step
+        cols.append((f(theta, points + e) - f(theta, points - e)) / (2 * step))
+    return torch.stack(cols, 1)
+
+
+@torch.no_grad()
+def mesh_fd_jacobian(f: MeshFn, theta: torch.Tensor, step: float = 1e-6) -> torch.Tensor:
+    """Central differences in float64, ``(3V, n)`` (2n evaluations)."""
+    theta = theta.double()
+    cols = []
+    for j in range(theta.shape[0]):
+        e = torch.zeros_like(theta)
+        e[j] = step
+        cols.append((f(theta + e).reshape(-1) - f(theta - e).reshape(-1)) / (2 * step))
+    return torch.stack(cols, 1)
+
+
+def check_sdf_jacobian(f: SdfFn, theta: torch.Tensor, points: torch.Tensor, J: torch.Tensor | None = None,
+                       mode: Mode = "auto", step: float = 1e-6) -> JacobianCheck:
+    """Compare the (float64) Jacobian with central differences."""
+    theta, points = theta.double(), points.double()
+    if J is None:
+        J = sdf_jacobian(f, theta, points, mode)
+    return _compare(J, sdf_fd_jacobian(f, theta, points, step), step)
+
+
+def check_mesh_jacobian(f: MeshFn, theta: torch.Tensor, J: torch.Tensor | None = None,
+                        mode: Mode = "auto", step: float = 1e-6) -> JacobianCheck:
+    theta = theta.double()
+    if J is None:
+        J = mesh_jacobian(f, theta, mode)
+    return _compare(J, mesh_fd_jacobian(f, theta, step), step)

@@ -1,0 +1,236 @@
+"""Named, bounded, typed parameters.
+
+A generator exposes a flat, ordered :class:`ParamSpec`. Continuous (``float``) parameters form the
+vector ``theta`` that Jacobians and gradient optimizers work on; discrete ones (``int`` counts and
+``bool`` switches) fix the topology and travel as a plain ``dict[str, int]``. Everything converts
+between a named dict, a vector, and a normalized ``[0, 1]`` vector (what nlopt and the genetic
+search consume).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import torch
+
+Kind = Literal["float", "int", "bool"]
+Value = float | int
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter: a name, a type, closed bounds ``[lo, hi]`` and a default inside them."""
+
+    name: str
+    default: Value
+    lo: Value
+    hi: Value
+    kind: Kind = "float"
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("float", "int", "bool"):
+            raise ValueError(f"parameter {self.name!r}: expected kind float|int|bool, got {self.kind!r}")
+        if self.kind == "bool" and (self.lo, self.hi) != (0, 1):
+            object.__setattr__(self, "lo", 0)
+            object.__setattr__(self, "hi", 1)
+        if not (self.lo <= self.default <= self.hi):
+            raise ValueError(
+                f"parameter {self.name!r}: default {self.default} is outside [{self.lo}, {self.hi}]"
+            )
+
+    @property
+    def continuous(self) -> bool:
+        return self.kind == "float"
+
+    def check(self, value: object) -> Value:
+        """Validate one value and return it in the parameter's type; raise ``ValueError`` otherwise."""
+        if isinstance(value, bool):
+            value = int(value)
+        if not isinstance(value, (int, float, np.integer, np.floating)):
+            raise ValueError(f"parameter {self.name!r}: expected a number, got {value!r}")
+        value = float(value) if self.kind == "float" else value
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"parameter {self.name!r}: expected a finite number, got {value}")
+        if self.kind != "float":
+            if float(value) != round(float(value)):
+                raise ValueError(
+                    f"parameter {self.name!r} is {self.kind}: expected a whole number in "
+                    f"[{self.lo}, {self.hi}], got {value}"
+                )
+            value = int(round(float(value)))
+        if not (self.lo <= value <= self.hi):
+            raise ValueError(
+                f"parameter {self.name!r}: expected a value in [{self.lo}, {self.hi}], got {value}"
+            )
+        return value
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "kind": self.kind, "default": self.default, "lo": self.lo,
+                "hi": self.hi, "doc": self.doc}
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """A flat, ordered list of parameters with unique names."""
+
+    params: tuple[Param, ...]
+    _index: dict[str, int] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "params", tuple(self.params))
+        index = {}
+        for i, p in enumerate(self.params):
+            if p.name in index:
+                raise ValueError(f"duplicate parameter name {p.name!r}")
+            index[p.name] = i
+        object.__setattr__(self, "_index", index)
+
+    def __len__(self) -> int:
+        return len(self.params)
+
+    def __iter__(self):
+        return iter(self.params)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def __getitem__(self, name: str) -> Param:
+        try:
+            return self.params[self._index[name]]
+        except KeyError:
+            raise ValueError(self._unknown(name)) from None
+
+    def _unknown(self, name: str) -> str:
+        return f"unknown parameter {name!r}; valid names: {', '.join(self.names) or '(none)'}"
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.params)
+
+    @property
+    def continuous(self) -> tuple[Param, ...]:
+        return tuple(p for p in self.params if p.continuous)
+
+    @property
+    def discrete(self) -> tuple[Param, ...]:
+        return tuple(p for p in self.params if not p.continuous)
+
+    @property
+    def n_continuous(self) -> int:
+        return len(self.continuous)
+
+    def defaults(self) -> dict[str, Value]:
+        return {p.name: p.default for p in self.params}
+
+    def validate(self, values: Mapping[str, object], *, partial: bool = True) -> dict[str, Value]:
+        """Check names, types and bounds; fill missing names with defaults (unless ``partial`` is False).
+
+        Raises ``ValueError`` naming the first bad entry and what is allowed.
+        """
+        out = self.defaults()
+        for name, value in values.items():
+            if name not in self._index:
+                raise ValueError(self._unknown(name))
+            out[name] = self[name].check(value)
+        if not partial:
+            missing = [n for n in self.names if n not in values]
+            if missing:
+                raise ValueError(f"missing parameters: {', '.join(missing)}")
+        return out
+
+    # vectors -----------------------------------------------------------------------------------
+    def lower(self, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Lower bounds of the continuous parameters, ``(n,)``."""
+        return torch.tensor([float(p.lo) for p in self.continuous], dtype=dtype, device=device)
+
+    def upper(self, dtype=torch.float64, device=None) -> torch.Tensor:
+        """Upper bounds of the continuous parameters, ``(n,)``."""
+        return torch.tensor([float(p.hi) for p in self.continuous], dtype=dtype, device=device)
+
+    def to_vector(self, values: Mapping[str, Value], dtype=torch.float64, device=None) -> torch.Tensor:
+        """Continuous values of a (validated) dict as ``theta: (n,)``."""
+        full = self.validate(values)
+        return torch.tensor([float(full[p.name]) for p in self.continuous], dtype=dtype, device=device)
+
+    def discrete_values(self, values: Mapping[str, Value]) -> dict[str, int]:
+        """The discrete part of a (validated) dict."""
+        full = self.validate(values)
+        return {p.name: int(full[p.name]) for p in self.discrete}
+
+    def from_vector(self, theta: torch.Tensor | Iterable[float],
+                    discrete: Mapping[str, int] | None = None) -> dict[str, Value]:
+        """Named dict from ``theta: (n,)`` and the discrete values (defaults where absent)."""
+        vals = [float(v) for v in (theta.detach().cpu().tolist() if torch.is_tensor(theta) else theta)]
+        if len(vals) != self.n_continuous:
+            raise ValueError(f"expected a vector of {self.n_continuous} continuous values, got {len(vals)}")
+        out = self.defaults()
+        for name, value in (discrete or {}).items():
+            p = self[name]
+            if p.continuous:
+                raise ValueError(f"parameter {name!r} is continuous; pass it in the vector")
+            out[name] = p.check(value)
+        out.update({p.name: v for p, v in zip(self.continuous, vals)})
+        return out
+
+    def normalize(self, theta: torch.Tensor) -> torch.Tensor:
+        """Map ``theta: (..., n)`` to ``[0, 1]`` per coordinate (zero-width ranges map to 0)."""
+        lo, hi = self.lower(theta.dtype, theta.device), self.upper(theta.dtype, theta.device)
+        span = torch.where(hi > lo, hi - lo, torch.ones_like(hi))
+        return (theta - lo) / span
+
+    def denormalize(self, u: torch.Tensor) -> torch.Tensor:
+        """Inverse of :meth:`normalize`."""
+        lo, hi = self.lower(u.dtype, u.device), self.upper(u.dtype, u.device)
+        return lo + u * (hi - lo)
+
+    def random(self, rng: np.random.Generator) -> dict[str, Value]:
+        """Uniform sample within the bounds (integers uniform over their range)."""
+        out: dict[str, Value] = {}
+        for p in self.params:
+            if p.continuous:
+                out[p.name] = float(rng.uniform(p.lo, p.hi))
+            else:
+                out[p.name] = int(rng.integers(int(p.lo), int(p.hi) + 1))
+        return out
+
+    def to_json(self) -> list[dict]:
+        return [p.to_json() for p in self.params]
+
+
+def parse_assignment(text: str) -> tuple[str, float]:
+    """Parse ``NAME=VALUE`` (from ``--set``); raise ``ValueError`` with the expected form."""
+    name, sep, raw = text.partition("=")
+    if not sep or not name.strip():
+        raise ValueError(f"expected NAME=VALUE, got {text!r}")
+    try:
+        value = float(raw)
+    except ValueError:
+        raise ValueError(f"expected a number after '=' in {text!r}") from None
+    return name.strip(), value
+
+
+def load_param_file(path: str | Path) -> tuple[str | None, dict[str, object]]:
+    """Read ``{"generator": ..., "params": {...}}``; return (generator name or None, raw params)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"parameter file not found: {path}")
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"parameter file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+    if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
+        raise ValueError(f"parameter file {path}: expected an object with a 'params' object")
+    gen = data.get("generator")
+    return (str(gen) if gen is not None else None), dict(data["params"])
+
+
+def param_file_json(generator: str, values: Mapping[str, Value]) -> str:
+    """The text of a parameter file."""
+    return json.dumps({"generator": generator, "params": dict(values)}, indent=2) + "\n"

@@ -1,0 +1,146 @@
+"""Frozen values handed between stages: meshes, cameras, fit results."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import torch
+
+
+@dataclass(frozen=True)
+class TriMesh:
+    """A triangle mesh whose vertices may carry gradients.
+
+    verts: (V, 3) float — positions (row order = Jacobian row order, 3 rows per vertex)
+    faces: (F, 3) int64 — counter-clockwise seen from outside
+    groups: (F,) int64 or None — part index of every face (see ``group_names``)
+    group_names: names of the part indices (walls, windows, handle, ...)
+    """
+
+    verts: torch.Tensor
+    faces: torch.Tensor
+    groups: torch.Tensor | None = None
+    group_names: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        if self.verts.ndim != 2 or self.verts.shape[-1] != 3:
+            raise ValueError(f"verts: expected (V, 3), got {tuple(self.verts.shape)}")
+        if self.faces.ndim != 2 or self.faces.shape[-1] != 3:
+            raise ValueError(f"faces: expected (F, 3), got {tuple(self.faces.shape)}")
+        if self.groups is not None and self.groups.shape != self.faces.shape[:1]:
+            raise ValueError(f"groups: expected ({self.faces.shape[0]},), got {tuple(self.groups.shape)}")
+
+    @property
+    def n_verts(self) -> int:
+        return int(self.verts.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.faces.shape[0])
+
+    def detach(self) -> TriMesh:
+        return TriMesh(self.verts.detach(), self.faces, self.groups, self.group_names)
+
+    def to_trimesh(self):
+        """A ``trimesh.Trimesh`` (``process=False``: vertex order is kept)."""
+        import trimesh
+
+        return trimesh.Trimesh(
+            vertices=self.verts.detach().cpu().double().numpy(),
+            faces=self.faces.detach().cpu().numpy(),
+            process=False,
+        )
+
+    @staticmethod
+    def from_trimesh(mesh, dtype=torch.float64, device=None) -> TriMesh:
+        return TriMesh(
+            torch.as_tensor(mesh.vertices, dtype=dtype, device=device),
+            torch.as_tensor(mesh.faces, dtype=torch.int64, device=device),
+        )
+
+    @staticmethod
+    def concat(parts: Sequence[TriMesh], names: Sequence[str] | None = None) -> TriMesh:
+        """Merge meshes (no welding). With ``names``, part i gets group i."""
+        verts, faces, groups, offset = [], [], [], 0
+        for i, m in enumerate(parts):
+            verts.append(m.verts)
+            faces.append(m.faces + offset)
+            groups.append(torch.full((m.n_faces,), i, dtype=torch.int64, device=m.faces.device))
+            offset += m.n_verts
+        return TriMesh(
+            torch.cat(verts), torch.cat(faces),
+            torch.cat(groups) if names is not None else None,
+            tuple(names) if names is not None else (),
+        )
+
+
+def _vec3(x, dtype=torch.float64) -> torch.Tensor:
+    t = torch.as_tensor(x, dtype=dtype) if not torch.is_tensor(x) else x
+    if t.shape != (3,):
+        raise ValueError(f"expected a 3-vector, got shape {tuple(t.shape)}")
+    return t
+
+
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera (OpenGL convention: looks down -Z in camera space, Y up on screen).
+
+    eye, target, up: (3,) float tensors; fov_deg: () float tensor, vertical field of view in degrees;
+    width, height: image size in pixels. Tensors may require grad (poses and FOV can be fitted).
+    """
+
+    eye: torch.Tensor
+    target: torch.Tensor
+    up: torch.Tensor
+    fov_deg: torch.Tensor
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        for name in ("eye", "target", "up"):
+            object.__setattr__(self, name, _vec3(getattr(self, name)))
+        fov = self.fov_deg if torch.is_tensor(self.fov_deg) else torch.tensor(float(self.fov_deg),
+                                                                                dtype=self.eye.dtype)
+        object.__setattr__(self, "fov_deg", fov)
+        if int(self.width) <= 0 or int(self.height) <= 0:
+            raise ValueError(f"camera image size: expected positive width and height, "
+                             f"got {self.width}x{self.height}")
+        if not (0.0 < float(fov.detach()) < 180.0):
+            raise ValueError(f"camera fov_deg: expected a value in (0, 180), got {float(fov.detach())}")
+
+    def to_json(self) -> dict:
+        return {
+            "eye": [float(v) for v in self.eye.detach().cpu().tolist()],
+            "target": [float(v) for v in self.target.detach().cpu().tolist()],
+            "up": [float(v) for v in self.up.detach().cpu().tolist()],
+            "fov_deg": float(self.fov_deg.detach()),
+            "width": int(self.width),
+            "height": int(self.height),
+        }
+
+    @staticmethod
+    def from_json(d: dict) -> Camera:
+        need = ("eye", "target", "up", "fov_deg", "width", "height")
+        missing = [k for k in need if k not in d]
+        if missing:
+            raise ValueError(f"camera entry is missing {', '.join(missing)}; expected fields {', '.join(need)}")
+        return Camera(d["eye"], d["target"], d["up"], d["fov_deg"], int(d["width"]), int(d["height"]))
+
+    def to(self, dtype=None, device=None) -> Camera:
+        return Camera(self.eye.to(dtype=dtype, device=device), self.target.to(dtype=dtype, device=device),
+                      self.up.to(dtype=dtype, device=device), self.fov_deg.to(dtype=dtype, device=device),
+                      self.width, self.height)
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What a fit returns: the best parameters and how it got there."""
+
+    generator: str
+    params: dict
+    loss: float
+    evaluations: int
+    wall_time_s: float
+    scores: dict = field(default_factory=dict)
+    run_dir: str | None = None

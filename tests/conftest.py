@@ -1,0 +1,31 @@
+"""Shared fixtures: paths to the real data beside the project, seeded generators."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+ROOT = Path(__file__).resolve().parents[1]
+REAL = (ROOT / ".." / "shared" / "data" / "real").resolve()
+
+
+def real_path(rel: str) -> Path:
+    """A file under ../shared/data/real; skips the test (with the reason) if it is not there."""
+    p = REAL / rel
+    if not p.is_file():
+        pytest.skip(f"real data not found: {p}")
+    return p
+
+
+@pytest.fixture
+def rng() -> np.random.Generator:
+    return np.random.default_rng(1234)
+
+
+@pytest.fixture(autouse=True)
+def _torch_threads():
+    torch.set_num_threads(2)
+    yield
