@@ -14,23 +14,49 @@ import torch
 EPS2 = 1e-20
 
 
+def coord_major(p: torch.Tensor) -> torch.Tensor:
+    """The same points ``(..., k)`` stored coordinate by coordinate (each ``p[..., i]`` contiguous).
+
+    Node formulas work per coordinate; contiguous coordinates make each elementwise op about 3x
+    faster than slicing interleaved ``(N, 3)`` rows.
+    """
+    if p.dim() < 2 or p.movedim(-1, 0).is_contiguous():
+        return p
+    return p.movedim(-1, 0).contiguous().movedim(0, -1)
+
+
+def stack_coords(cols) -> torch.Tensor:
+    """Inverse of unbinding the last axis, keeping the coordinate-major layout."""
+    return torch.stack(list(cols), 0).movedim(0, -1)
+
+
+def rotate_points(p: torch.Tensor, R: torch.Tensor) -> torch.Tensor:
+    """``p @ R`` for points ``(..., 3)``, computed as ``R^T @ p^T`` to keep the coordinate-major layout."""
+    pc = p.movedim(-1, 0)
+    flat = pc.reshape(3, -1)
+    return (R.T @ flat).reshape(pc.shape).movedim(0, -1)
+
+
 def safe_sqrt(x: torch.Tensor) -> torch.Tensor:
-    """``sqrt(max(x, 0) + EPS2)``: finite value and gradient at 0."""
-    return torch.sqrt(torch.clamp(x, min=0.0) + EPS2)
+    """``sqrt(x + EPS2)`` for ``x >= 0`` (sums of squares): finite value and gradient at 0."""
+    return torch.sqrt(x + EPS2)
 
 
 def length(v: torch.Tensor) -> torch.Tensor:
-    """Euclidean norm over the last axis, ``(..., k) -> (...)``, with a finite gradient at 0."""
-    return safe_sqrt((v * v).sum(-1))
+    """Euclidean norm over the last axis, ``(..., k) -> (...)``, with a finite gradient at 0.
+
+    One fused kernel; torch's norm derivatives are defined as 0 at the zero vector.
+    """
+    return torch.linalg.vector_norm(v, dim=-1)
 
 
 def length2(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
     """Norm of the 2-vector ``(x, y)`` given as two tensors (avoids stacking)."""
-    return safe_sqrt(x * x + y * y)
+    return safe_sqrt(torch.addcmul(x * x, y, y))
 
 
 def length3(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-    return safe_sqrt(x * x + y * y + z * z)
+    return safe_sqrt(torch.addcmul(torch.addcmul(x * x, y, y), z, z))
 
 
 def relu(x: torch.Tensor) -> torch.Tensor:
@@ -42,7 +68,11 @@ def box_combine(*d: torch.Tensor) -> torch.Tensor:
 
     ``length(max(d, 0)) + min(max_i d_i, 0)`` — the core of Quilez's ``sdBox`` (exact).
     """
-    outside = safe_sqrt(sum(relu(di) ** 2 for di in d))
+    r = [relu(di) for di in d]
+    sq = r[0] * r[0]
+    for ri in r[1:]:
+        sq = torch.addcmul(sq, ri, ri)
+    outside = safe_sqrt(sq)
     inside = d[0]
     for di in d[1:]:
         inside = torch.maximum(inside, di)
@@ -90,7 +120,8 @@ def polygon_sdf(px: torch.Tensor, py: torch.Tensor, verts: list[tuple]) -> torch
     """
     n = len(verts)
     vx0, vy0 = verts[0]
-    d = (px - vx0) ** 2 + (py - vy0) ** 2
+    dx0, dy0 = px - vx0, py - vy0
+    d = dx0 * dx0 + dy0 * dy0
     s = torch.ones_like(px)
     for i in range(n):
         j = (i - 1) % n

@@ -310,8 +310,9 @@ class Pyramid(Primitive3D):
         qz = h * px + 0.5 * py
         s = relu(-qx)
         t = torch.clamp((qy - 0.5 * pz) / (m2 + 0.25), 0.0, 1.0)
-        a = m2 * (qx + s) ** 2 + qy * qy
-        bb = m2 * (qx + 0.5 * t) ** 2 + (qy - m2 * t) ** 2
+        qs, qt, qm = qx + s, qx + 0.5 * t, qy - m2 * t
+        a = m2 * qs * qs + qy * qy
+        bb = m2 * qt * qt + qm * qm
         d2 = torch.where(torch.minimum(qy, -qx * m2 - qy * 0.5) > 0.0, torch.zeros_like(a), torch.minimum(a, bb))
         sign = torch.sign(torch.maximum(qz, -py))
         return safe_sqrt((d2 + qz * qz) / m2) * sign * b

@@ -5,9 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
-from ipm.sdf._math import box_combine, length2
+from ipm.sdf._math import box_combine, length2, stack_coords
 from ipm.sdf.d3 import LEN, P
 from ipm.sdf.nodes import Node, register
 
@@ -47,7 +46,7 @@ class Revolve(Lift):
 
     def eval(self, p, th, kids):
         r = length2(p[..., 0], p[..., 2]) - th[0]
-        return kids[0](torch.stack([r, p[..., 1]], -1))
+        return kids[0](stack_coords([r, p[..., 1]]))
 
     def bbox(self, v, kids):
         lo, hi = kids[0]

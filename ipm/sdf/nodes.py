@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from ipm.params import Param, ParamSpec
+from ipm.sdf._math import coord_major
 
 Eval = Callable[[torch.Tensor], torch.Tensor]
 Box = tuple[np.ndarray, np.ndarray]
@@ -290,7 +291,7 @@ class Tree:
             theta = self.theta(points.dtype, points.device)
         else:
             theta = theta.to(points.dtype)
-        return self._fn(points, theta, ())
+        return self._fn(coord_major(points), theta, ())
 
     __call__ = sdf
 

@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from ipm.params import Param
-from ipm.sdf._math import axis_from_tilt, box_combine, deg2rad, rotation_matrix
+from ipm.sdf._math import axis_from_tilt, box_combine, deg2rad, rotate_points, rotation_matrix, stack_coords
 from ipm.sdf.d3 import LEN, POS, P
 from ipm.sdf.nodes import Node, register
 
@@ -75,7 +75,7 @@ class Rotate(Transform3D):
     def eval(self, p, th, kids):
         angle, tilt, az = th
         R = rotation_matrix(axis_from_tilt(tilt, az), angle).to(p.dtype)
-        return kids[0](p @ R)  # row vectors: (R^T p)^T = p^T R, the inverse rotation
+        return kids[0](rotate_points(p, R))  # p^T R = (R^T p)^T: the inverse rotation
 
     def bbox(self, v, kids):
         angle, tilt, az = (torch.tensor(x, dtype=torch.float64) for x in v)
@@ -184,7 +184,7 @@ class Mirror(Transform3D):
         axis, off = th
         cols = list(p.unbind(-1))
         cols[axis] = (cols[axis] - off).abs() + off
-        return kids[0](torch.stack(cols, -1))
+        return kids[0](stack_coords(cols))
 
     def bbox(self, v, kids):
         axis, off = int(v[0]), v[1]
@@ -212,7 +212,7 @@ class Repeat(Transform3D):
         x = cols[axis]
         idx = torch.clamp(torch.round(x.detach() / s.detach() + half), 0, n - 1)
         cols[axis] = x - (idx - half) * s
-        return kids[0](torch.stack(cols, -1))
+        return kids[0](stack_coords(cols))
 
     def bbox(self, v, kids):
         axis, n, s = int(v[0]), int(v[1]), v[2]
@@ -229,7 +229,7 @@ def _rot2(p, angle_deg):
     a = deg2rad(angle_deg)
     c, s = torch.cos(a), torch.sin(a)
     x, y = p[..., 0], p[..., 1]
-    return torch.stack([c * x + s * y, -s * x + c * y], -1)  # inverse rotation of the points
+    return stack_coords([c * x + s * y, -s * x + c * y])  # inverse rotation of the points
 
 
 def _rot2_box(lo, hi, angle_deg):

@@ -1,0 +1,66 @@
+"""Shared benchmark helpers: timing, machine description, result files."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import statistics
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import torch
+
+COMMAND = "make bench"
+
+
+def machine() -> str:
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return (f"{cpu}, {os.cpu_count()} cores, torch {torch.__version__} "
+            f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
+
+
+def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
+    """Median wall time of ``fn`` in seconds."""
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times)
+
+
+def write_results(out_dir: Path, name: str, title: str, rows: list[dict], notes: str = "") -> None:
+    """Write ``<name>.json`` and a Markdown table ``<name>.md`` with machine, date and command."""
+    from ipm.io.atomic import write_text
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    meta = {"machine": machine(), "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "command": COMMAND}
+    write_text(out_dir / f"{name}.json", json.dumps({"meta": meta, "rows": rows}, indent=2) + "\n")
+    cols = list(rows[0]) if rows else []
+    lines = [f"# {title}", "", f"Machine: {meta['machine']}  ", f"Date: {meta['date']}  ",
+             f"Command: `{COMMAND}`", ""]
+    if notes:
+        lines += [notes, ""]
+    lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for r in rows:
+        lines.append("| " + " | ".join(_fmt(r[c]) for c in cols) + " |")
+    write_text(out_dir / f"{name}.md", "\n".join(lines) + "\n")
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
