@@ -7,3 +7,12 @@ import logging
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+
+def __getattr__(name: str):
+    # ``ipm.fit`` without importing torch and the optimizers at ``import ipm``
+    if name == "fit":
+        from ipm.fitting import fit
+
+        return fit
+    raise AttributeError(f"module 'ipm' has no attribute {name!r}")

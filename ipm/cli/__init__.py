@@ -12,7 +12,7 @@ import sys
 import typer
 
 # Command modules, in the order of `ipm --help`.
-COMMANDS = ["list_cmd", "generate", "jacobian", "render"]
+COMMANDS = ["list_cmd", "generate", "jacobian", "render", "fit"]
 
 app = typer.Typer(
     name="ipm",

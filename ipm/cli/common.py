@@ -25,9 +25,8 @@ def error_line(msg: str) -> None:
 
 
 def setup_logging(verbose: bool = False) -> None:
-    from rich.logging import RichHandler
-
     from rich.console import Console
+    from rich.logging import RichHandler
 
     logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(message)s",
                         handlers=[RichHandler(console=Console(stderr=True), show_path=False)], force=True)

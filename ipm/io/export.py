@@ -59,7 +59,8 @@ def export_mesh(mesh: TriMesh, path: str | Path, metadata: dict | None = None, *
     path = Path(path)
     fmt = path.suffix.lower()
     if fmt not in EXPORTERS:
-        raise ValueError(f"output {path}: expected a suffix among {', '.join(sorted(EXPORTERS))}, got {fmt or '(none)'}")
+        raise ValueError(f"output {path}: expected a suffix among {', '.join(sorted(EXPORTERS))}, "
+                         f"got {fmt or '(none)'}")
     if mesh.n_faces == 0:
         raise ValueError("the mesh is empty (no faces): nothing to export")
     meta = dict(metadata or {})

@@ -1,0 +1,156 @@
+"""``ipm.fit(...)``: the fit in a few lines, with a run folder, checkpoints and resume.
+
+    import ipm
+    result = ipm.fit("dishes", masks="out/mug_masks", preset="teacup", discrete="memetic",
+                     budget=1500, seed=0, run_dir="runs/mug")
+    result.params, result.scores["iou_mean"]
+
+The run folder holds ``settings.json``, ``trajectory.jsonl`` (every evaluation; also the checkpoint),
+``params.json``, ``mesh.glb``, ``mesh.obj``, ``result.json``, ``overlay_000.png`` ... and ``loss.png``.
+``resume=True`` continues an interrupted run: the recorded evaluations are replayed, so with the same
+seed the run ends where an uninterrupted one would.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+from collections.abc import Callable
+from dataclasses import fields
+from pathlib import Path
+
+import torch
+
+from ipm.types import FitResult
+
+log = logging.getLogger(__name__)
+
+
+def _settings_from_json(d: dict):
+    from ipm.optim import discrete as D
+    from ipm.optim.fit import FitSettings
+
+    known = {f.name for f in fields(FitSettings)}
+    kw = {k: v for k, v in d.items() if k in known}
+    if isinstance(kw.get("memetic"), dict):
+        kw["memetic"] = D.MemeticSettings(**kw["memetic"])
+    if isinstance(kw.get("nlopt"), dict):
+        kw["nlopt"] = D.NloptSettings(**kw["nlopt"])
+    return FitSettings(**kw)
+
+
+def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
+                camera: str = "known", device=None, dtype=torch.float32):
+    """A MaskTarget from a mask folder, or a MeshTarget from a mesh file (normalized as in DESIGN.md)."""
+    from ipm.optim.fit import MaskTarget, MeshTarget
+
+    if (masks is None) == (target_mesh is None):
+        raise ValueError("expected exactly one target: masks (a folder) or a target mesh")
+    if masks is not None:
+        from ipm.io.masks import load_mask_set
+
+        m, cams = load_mask_set(Path(masks), require_cameras=(camera == "known"))
+        t = torch.as_tensor(m, dtype=dtype, device=device)
+        if t.max() > 1:
+            t = t / 255.0
+        return MaskTarget(t, [c.to(dtype=dtype, device=device) for c in cams])
+    from ipm.io.meshes import load_mesh
+
+    mesh = load_mesh(Path(target_mesh), up=up, normalize=True)
+    if mesh.n_faces == 0:
+        raise ValueError(f"target mesh {target_mesh} has no faces")
+    return MeshTarget(mesh)
+
+
+def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
+        run_dir: str | Path | None = None, resume: bool = False, library: list[str] | None = None,
+        progress: Callable | None = None, device=None, **settings) -> FitResult:
+    """Fit ``generator`` (a name, tree file or Generator) to masks or a mesh; see :class:`FitSettings`
+    for ``settings`` (budget, seed, discrete, camera, loss, local, lr, preset, free, fix, ...)."""
+    from ipm.generators import get_generator
+    from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, read_trajectory, write_json
+    from ipm.optim.fit import FitSettings, hard_scores, run_fit
+
+    gen = get_generator(generator, library=library) if isinstance(generator, str) else generator
+    replay: list[dict] = []
+    run_dir = Path(run_dir) if run_dir is not None else None
+    if resume:
+        if run_dir is None or not (run_dir / SETTINGS).is_file():
+            raise ValueError(f"--resume: {run_dir} is not a run folder (no {SETTINGS})")
+        saved = json.loads((run_dir / SETTINGS).read_text())
+        if saved.get("generator") != gen.name:
+            raise ValueError(f"--resume: the run was for generator {saved.get('generator')!r}, not {gen.name!r}")
+        cfg = _settings_from_json(saved["settings"])
+        masks, target_mesh, up = saved.get("masks"), saved.get("target_mesh"), saved.get("up", "y")
+        replay = read_trajectory(run_dir / TRAJECTORY)
+    else:
+        cfg = FitSettings(**settings)
+    cfg.check()
+    target = load_target(masks=masks, target_mesh=target_mesh, up=up, camera=cfg.camera, device=device)
+    sink = None
+    if run_dir is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(run_dir / SETTINGS, {"generator": gen.name, "settings": cfg.to_json(),
+                                        "masks": None if masks is None else str(masks),
+                                        "target_mesh": None if target_mesh is None else str(target_mesh),
+                                        "up": up})
+        sink = Trajectory(run_dir / TRAJECTORY, keep=len(replay))
+    try:
+        result, prob, best = run_fit(gen, target, cfg, sink=sink, replay=replay, progress=progress)
+    finally:
+        if sink is not None:
+            sink.close()
+    scores = hard_scores(prob, best)
+    if run_dir is not None:
+        out = save_run(run_dir, prob, best, result, cfg, scores)
+        scores = out["scores"]
+    return FitResult(result.generator, result.params, result.loss, result.evaluations, result.wall_time_s,
+                     scores, None if run_dir is None else str(run_dir))
+
+
+def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
+             scores: dict) -> dict:
+    """Write params.json, mesh.glb, mesh.obj, result.json and pictures into ``run_dir``."""
+    import numpy as np
+
+    import ipm
+    from ipm.io.export import export_mesh
+    from ipm.io.runs import RESULT, write_json
+    from ipm.optim.fit import MaskTarget
+
+    run_dir = Path(run_dir)
+    x = best["x"].to(torch.float64)
+    mesh = prob.mesh_world(x, best["discrete"]).detach()
+    params = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x)}
+    write_json(run_dir / "params.json", params)
+    meta = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x)}
+    export_mesh(mesh, run_dir / "mesh.glb", meta, sidecar=False)
+    export_mesh(mesh, run_dir / "mesh.obj", meta, sidecar=False)
+    files = {"params": "params.json", "mesh": ["mesh.glb", "mesh.obj"]}
+    if isinstance(prob.target, MaskTarget):
+        from ipm.render.raster import rasterize
+        from ipm.viz.overlay import write_overlay
+
+        overlays = []
+        for i, (cam, tgt) in enumerate(zip(prob.cameras(x), prob.target.masks)):
+            pred = np.asarray(rasterize(mesh, cam).mask)
+            path = run_dir / f"overlay_{i:03d}.png"
+            write_overlay(tgt.cpu().numpy() > 0.5, pred, path)
+            overlays.append(path.name)
+        files["overlays"] = overlays
+    try:
+        from ipm.viz.plots import write_loss_plot
+
+        write_loss_plot(run_dir / "trajectory.jsonl", run_dir / "loss.png")
+        files["loss_plot"] = "loss.png"
+    except ImportError:
+        pass
+    out = {
+        "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
+        "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),
+        "scores": scores, "params": result.params, "pose": prob.pose_json(x), "discrete": best["discrete"],
+        "files": files,
+        "versions": {"ipm": ipm.__version__, "torch": torch.__version__, "numpy": np.__version__},
+    }
+    write_json(run_dir / RESULT, out)
+    return out

@@ -1,0 +1,109 @@
+"""Counted, recorded, replayable evaluations.
+
+Every search strategy sees the problem only through an :class:`Evaluator`: ``ev(x, discrete)`` returns
+the loss (and its gradient with respect to ``x``) and counts one evaluation (one render + loss). The
+evaluator stops the search when the budget is spent, remembers the best point, and hands every
+record to a sink (the run's ``trajectory.jsonl``).
+
+Resuming: records of an interrupted run are *replayed*. A deterministic search (same seed) asks for the
+same points in the same order, so the evaluator answers from the records while they last (checking
+that the point matches) and then goes on live. The resumed run therefore ends exactly where an
+uninterrupted run would, whatever the search strategy (nlopt's internal state included).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import torch
+
+log = logging.getLogger(__name__)
+
+# objective(x (m,) float64 in [0, 1], discrete, need_grad) -> (loss (0-dim), grad (m,) or None, extras)
+Objective = Callable[[torch.Tensor, dict, bool], tuple[torch.Tensor, torch.Tensor | None, dict]]
+
+
+class BudgetExhausted(Exception):
+    """Raised by the evaluator when the evaluation budget is spent."""
+
+
+class ReplayMismatch(RuntimeError):
+    """A resumed run asked for a different point than the recorded run did."""
+
+
+@dataclass
+class Best:
+    loss: float = math.inf
+    x: torch.Tensor | None = None
+    discrete: dict = field(default_factory=dict)
+    index: int = -1
+
+
+class Evaluator:
+    """Budgeted access to an objective, with recording and replay (see the module docstring)."""
+
+    def __init__(self, objective: Objective, budget: int, *, sink: Callable[[dict], None] | None = None,
+                 replay: Sequence[dict] = (), progress: Callable[[Evaluator], None] | None = None):
+        if budget < 1:
+            raise ValueError(f"budget: expected at least 1 evaluation, got {budget}")
+        self.objective = objective
+        self.budget = int(budget)
+        self.sink = sink
+        self.replay = list(replay)
+        self.progress = progress
+        self.count = 0
+        self.best = Best()
+        self.phase = "start"
+        self.last: dict = {}   # the latest record, live or replayed
+        self.t0 = time.perf_counter()
+
+    @property
+    def remaining(self) -> int:
+        return self.budget - self.count
+
+    @property
+    def replaying(self) -> bool:
+        return self.count < len(self.replay)
+
+    def __call__(self, x: torch.Tensor, discrete: dict, *, grad: bool = True) -> tuple[float, torch.Tensor | None]:
+        if self.count >= self.budget:
+            raise BudgetExhausted
+        x = x.detach().to(torch.float64).clamp(0.0, 1.0)
+        xs = [float(v) for v in x.tolist()]
+        disc = {k: int(v) for k, v in discrete.items()}
+        if self.replaying:
+            rec = self.replay[self.count]
+            if rec["x"] != xs or rec["discrete"] != disc or bool(rec.get("grad") is not None) != grad:
+                raise ReplayMismatch(
+                    f"resume: evaluation {self.count} differs from the recorded run (different seed, "
+                    "settings or code?); start a new run instead")
+            loss = float(rec["loss"])
+            g = torch.tensor(rec["grad"], dtype=torch.float64) if rec.get("grad") is not None else None
+            extras = {k: rec[k] for k in rec if k not in ("i", "x", "discrete", "loss", "grad", "phase", "t")}
+        else:
+            loss_t, g_t, extras = self.objective(x, disc, grad)
+            loss = float(loss_t.detach())
+            if not math.isfinite(loss):
+                loss = 1e6  # a degenerate shape: steer away instead of crashing the search
+                g_t = torch.zeros_like(x) if grad else None
+            g = None
+            if grad:
+                gl = [float(v) for v in g_t.detach().to(torch.float64).tolist()]
+                gl = [v if math.isfinite(v) else 0.0 for v in gl]
+                g = torch.tensor(gl, dtype=torch.float64)
+            rec = {"i": self.count, "phase": self.phase, "loss": loss, "x": xs, "discrete": disc,
+                   "grad": None if g is None else [float(v) for v in g.tolist()],
+                   "t": round(time.perf_counter() - self.t0, 4), **extras}
+            if self.sink is not None:
+                self.sink(rec)
+        self.last = rec
+        if loss < self.best.loss:
+            self.best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count)
+        self.count += 1
+        if self.progress is not None:
+            self.progress(self)
+        return loss, g

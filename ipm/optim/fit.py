@@ -1,0 +1,427 @@
+"""Fitting a generator to silhouette masks or to a mesh: the problem, its initialization, the search,
+and the run's files.
+
+The optimizer works on one normalized vector ``x`` in [0, 1]^m and a dict of discrete values:
+
+    x = [ free generator parameters (normalized by their bounds)
+        | object pose: translation (3), rotation about the up axis, log2 of a uniform scale
+        | camera (with ``camera="fit"``): elevation, distance, vertical field of view ]
+
+The generator's output is first brought to the normalized frame of DESIGN.md (bounding-box center at
+the origin, longest side 2, measured once on the starting shape), then posed. One evaluation is one
+render of every view plus the loss (or, for a mesh target, one loss).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ipm import losses as L
+from ipm.optim import discrete as D
+from ipm.optim import gradient as G
+from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.types import Camera, FitResult, TriMesh
+
+log = logging.getLogger(__name__)
+
+T_RANGE = 1.5          # translation in normalized units: [-1.5, 1.5]
+LOG2S_RANGE = 2.0      # uniform scale in [1/4, 4]
+ELEV = (-10.0, 80.0)   # camera fit: elevation in degrees
+DIST = (1.5, 10.0)     # camera fit: distance from the target point
+FOV = (10.0, 90.0)     # camera fit: vertical field of view in degrees
+CAMERA_MODES = ("known", "fit")
+
+
+@dataclass
+class MaskTarget:
+    """Silhouettes to match: ``masks (K, H, W)`` float in [0, 1] and one camera per view (``camera="fit"``
+    uses only their image sizes)."""
+
+    masks: torch.Tensor
+    cameras: list[Camera]
+
+    def __post_init__(self):
+        if self.masks.ndim != 3:
+            raise ValueError(f"masks: expected (K, H, W), got {tuple(self.masks.shape)}")
+        if len(self.cameras) != self.masks.shape[0]:
+            raise ValueError(f"expected one camera per mask, got {len(self.cameras)} cameras for "
+                             f"{self.masks.shape[0]} masks")
+        for i, m in enumerate(self.masks):
+            frac = float((m > 0.5).float().mean())
+            if frac == 0.0:
+                raise ValueError(f"mask {i} is empty (no foreground pixel)")
+            if frac == 1.0:
+                raise ValueError(f"mask {i} is all foreground: the object must fit inside the image")
+
+
+@dataclass
+class MeshTarget:
+    """A mesh to match (normalized to DESIGN.md's frame when loaded)."""
+
+    mesh: TriMesh
+    samples: int = 4000
+
+
+@dataclass
+class FitSettings:
+    """Everything a fit can be told. Defaults are what ``ipm fit`` uses."""
+
+    budget: int = 1500
+    seed: int = 0
+    discrete: str = "memetic"        # memetic | nlopt | enumerate | none
+    camera: str = "known"            # known | fit
+    loss: str = "iou"                # iou | mse (masks); chamfer for mesh targets is automatic
+    local: str = "adam"              # adam | mma | lbfgs
+    lr: float = 0.02
+    sigma: float = 0.0               # soft rasterizer blur; 0 = the renderer's default for the image size
+    preset: str | None = None        # start from this preset (default: the generator's defaults)
+    free: list[str] | None = None    # continuous parameters to fit (default: all)
+    fix: dict = field(default_factory=dict)   # parameters held at given values
+    pose: bool = True
+    prior_weight: float = 0.0        # pull towards the starting preset in normalized space
+    polish: float = 0.15             # share of the budget kept for the final gradient refinement
+    lod: Any = None
+    resolution: int = 128            # SDF generators: meshing of the result
+    memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
+    nlopt: D.NloptSettings = field(default_factory=D.NloptSettings)
+
+    def check(self) -> None:
+        if self.budget < 1:
+            raise ValueError(f"budget: expected at least 1 evaluation, got {self.budget}")
+        if self.discrete not in D.STRATEGIES:
+            raise ValueError(f"discrete search: expected one of {', '.join(D.STRATEGIES)}, got {self.discrete!r}")
+        if self.camera not in CAMERA_MODES:
+            raise ValueError(f"camera: expected known or fit, got {self.camera!r}")
+        if self.loss not in L.LOSSES:
+            raise ValueError(f"loss: expected one of {', '.join(L.LOSSES)}, got {self.loss!r}")
+        if self.local not in G.LOCAL:
+            raise ValueError(f"local optimizer: expected one of {', '.join(G.LOCAL)}, got {self.local!r}")
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+# ----------------------------------------------------------------------------------------------
+# The problem: decode x, render, loss
+# ----------------------------------------------------------------------------------------------
+
+def _rot_y(yaw_deg: torch.Tensor) -> torch.Tensor:
+    a = yaw_deg * (math.pi / 180.0)
+    c, s = torch.cos(a), torch.sin(a)
+    z, o = torch.zeros_like(c), torch.ones_like(c)
+    return torch.stack([torch.stack([c, z, s]), torch.stack([z, o, z]), torch.stack([-s, z, c])])
+
+
+class Problem:
+    """A generator, a target and the encoding of the search vector (see the module docstring)."""
+
+    def __init__(self, gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, dtype=torch.float32):
+        settings.check()
+        self.gen, self.target, self.s = gen, target, settings
+        self.dtype = dtype
+        self.device = target.masks.device if isinstance(target, MaskTarget) else target.mesh.verts.device
+        self.start = gen.values(settings.preset, settings.fix)
+        cont = [p.name for p in gen.spec.continuous]
+        free = settings.free if settings.free is not None else [n for n in cont if n not in settings.fix]
+        unknown = [n for n in free if n not in cont]
+        if unknown:
+            raise ValueError(f"free parameters: unknown or not continuous: {', '.join(unknown)}; "
+                             f"continuous parameters: {', '.join(cont)}")
+        self.free = [cont.index(n) for n in free]
+        self.n = len(self.free)
+        self.theta0, self.d0 = gen.split(self.start, torch.float64)
+        self.lo, self.hi = gen.spec.lower(), gen.spec.upper()
+        self.searched = [p for p in gen.spec.discrete if p.name not in settings.fix]
+        if settings.discrete == "none":
+            self.searched = []
+        self.cam_fit = isinstance(target, MaskTarget) and settings.camera == "fit"
+        self.m = self.n + 5 + (3 if self.cam_fit else 0)
+        self.pose_mask = torch.ones(self.m, dtype=torch.float64)
+        if not settings.pose:
+            self.pose_mask[self.n:self.n + 5] = 0
+        self.c0, self.L0 = self._canonical_frame()
+        self.u_ref = self.encode_params(self.theta0)
+        if isinstance(target, MeshTarget):
+            gen_t = torch.Generator().manual_seed(settings.seed)
+            tv, tf = target.mesh.verts.to(dtype), target.mesh.faces
+            self.target_pts = L.SurfaceSampler.draw(tv, tf, target.samples, gen_t).points(tv)
+            self._samplers: dict = {}
+            if gen.kind == "sdf":
+                from ipm.metrics import inside
+
+                rng = np.random.default_rng(settings.seed)
+                vol = rng.uniform(-1.1, 1.1, size=(target.samples, 3))
+                V, F = tv.detach().double().numpy(), tf.numpy()
+                self.vol_pts = torch.as_tensor(vol, dtype=dtype)
+                self.vol_inside = torch.as_tensor(inside(vol, V, F))
+
+    # -- encoding --------------------------------------------------------------------------------
+    def encode_params(self, theta: torch.Tensor) -> torch.Tensor:
+        lo, hi = self.lo[self.free], self.hi[self.free]
+        return ((theta[self.free] - lo) / (hi - lo).clamp(min=1e-12)).clamp(0, 1)
+
+    def x0(self, yaw: float = 0.0, scale: float = 1.0, t=(0.0, 0.0, 0.0), camera=None,
+           theta: torch.Tensor | None = None) -> torch.Tensor:
+        u = self.encode_params(self.theta0 if theta is None else theta)
+        pose = torch.tensor([(v / T_RANGE + 1) / 2 for v in t] + [(yaw / 180.0 + 1) / 2,
+                            (math.log2(scale) / LOG2S_RANGE + 1) / 2], dtype=torch.float64)
+        parts = [u, pose.clamp(0, 1)]
+        if self.cam_fit:
+            elev, dist, fov = camera or (25.0, 3.2, 40.0)
+            parts.append(torch.tensor([(elev - ELEV[0]) / (ELEV[1] - ELEV[0]), (dist - DIST[0]) / (DIST[1] - DIST[0]),
+                                       (fov - FOV[0]) / (FOV[1] - FOV[0])], dtype=torch.float64).clamp(0, 1))
+        return torch.cat(parts)
+
+    def decode(self, x: torch.Tensor):
+        """-> theta (n_all,), translation (3,), yaw (deg), scale, camera triple or None (all torch)."""
+        u = x[: self.n]
+        theta = self.theta0.to(x.dtype).clone()
+        lo, hi = self.lo[self.free].to(x.dtype), self.hi[self.free].to(x.dtype)
+        theta = theta.index_put((torch.as_tensor(self.free, dtype=torch.long),), lo + u * (hi - lo))
+        p = x[self.n:self.n + 5]
+        t = (p[:3] * 2 - 1) * T_RANGE
+        yaw = (p[3] * 2 - 1) * 180.0
+        scale = torch.pow(2.0, (p[4] * 2 - 1) * LOG2S_RANGE)
+        cam = None
+        if self.cam_fit:
+            c = x[self.n + 5:]
+            cam = (ELEV[0] + c[0] * (ELEV[1] - ELEV[0]), DIST[0] + c[1] * (DIST[1] - DIST[0]),
+                   FOV[0] + c[2] * (FOV[1] - FOV[0]))
+        return theta, t, yaw, scale, cam
+
+    def values(self, x: torch.Tensor, discrete: Mapping[str, int]) -> dict:
+        theta = self.decode(x.detach().double())[0]
+        return self.gen.spec.from_vector(theta, {**self.d0, **discrete})
+
+    def pose_json(self, x: torch.Tensor) -> dict:
+        _, t, yaw, scale, cam = self.decode(x.detach().double())
+        out = {"translation": [float(v) for v in t], "yaw_deg": float(yaw), "scale": float(scale),
+               "canonical_center": [float(v) for v in self.c0], "canonical_size": float(self.L0)}
+        if cam is not None:
+            out["camera"] = {"elevation_deg": float(cam[0]), "distance": float(cam[1]), "fov_deg": float(cam[2])}
+        return out
+
+    # -- geometry --------------------------------------------------------------------------------
+    def _canonical_frame(self) -> tuple[torch.Tensor, float]:
+        if self.gen.kind == "mesh":
+            v = self.gen.mesh(self.theta0, self.d0, self.s.lod).verts.detach().double()
+        else:
+            v = self.gen.to_mesh(self.start, resolution=48).verts.double()
+        if len(v) == 0:
+            raise ValueError(f"{self.gen.name}: the starting parameters give an empty shape")
+        lo, hi = v.min(0).values, v.max(0).values
+        return 0.5 * (lo + hi), float((hi - lo).max())
+
+    def _to_world(self, p: torch.Tensor, t, yaw, scale) -> torch.Tensor:
+        R = _rot_y(yaw).to(p.dtype)
+        k = (2.0 / self.L0)
+        return scale.to(p.dtype) * ((p - self.c0.to(p.dtype)) * k) @ R.T + t.to(p.dtype)
+
+    def mesh_world(self, x: torch.Tensor, discrete: dict) -> TriMesh:
+        """The posed mesh (world frame of the target); differentiable in ``x`` for mesh generators."""
+        theta, t, yaw, scale, _ = self.decode(x)
+        d = {**self.d0, **discrete}
+        if self.gen.kind == "mesh":
+            m = self.gen.mesh(theta.to(self.dtype), d, self.s.lod)
+        else:
+            values = self.gen.spec.from_vector(theta.detach().double(), d)
+            m = self.gen.to_mesh(values, resolution=self.s.resolution)
+        return TriMesh(self._to_world(m.verts.to(self.dtype), t, yaw, scale), m.faces, m.groups, m.group_names)
+
+    def sdf_world(self, x: torch.Tensor, discrete: dict):
+        """(f(points) -> distances in the world frame, lo (3,), hi (3,)) for SDF generators."""
+        theta, t, yaw, scale, _ = self.decode(x)
+        tree = self.gen.tree_for({**self.d0, **discrete})
+        th = theta.to(self.dtype)
+        k = self.L0 / 2.0
+        R = _rot_y(yaw).to(self.dtype)
+        sc = scale.to(self.dtype)
+
+        def f(p):
+            local = ((p - t.to(p.dtype)) @ R.to(p.dtype)) / (sc.to(p.dtype) / k) + self.c0.to(p.dtype)
+            return tree.sdf(th.to(p.dtype), local) * (sc.to(p.dtype) / k)
+
+        lo, hi = tree.with_theta(theta.detach().double()).bounds()
+        r = float(np.linalg.norm(np.maximum(np.abs(lo - self.c0.numpy()), np.abs(hi - self.c0.numpy())))) / k
+        r *= float(scale.detach())
+        c = t.detach().double().numpy()
+        return f, c - r, c + r
+
+    def cameras(self, x: torch.Tensor) -> list[Camera]:
+        cams = self.target.cameras
+        if not self.cam_fit:
+            return cams
+        from ipm.render.camera import orbit_camera
+
+        _, _, _, _, (elev, dist, fov) = self.decode(x)
+        c0 = cams[0]
+        return [orbit_camera(torch.zeros((), dtype=elev.dtype), elev, dist, fov, c0.width, c0.height)]
+
+    # -- the objective ---------------------------------------------------------------------------
+    def render_soft(self, x: torch.Tensor, discrete: dict) -> torch.Tensor:
+        """Soft silhouettes ``(K, H, W)`` of the posed shape in every view."""
+        from ipm.render.sdf_silhouette import sdf_silhouette
+        from ipm.render.soft import soft_silhouette
+
+        cams = self.cameras(x)
+        sig = self.s.sigma or None
+        if self.gen.kind == "mesh":
+            m = self.mesh_world(x, discrete)
+            kw = {} if sig is None else {"sigma": sig}
+            return torch.stack([soft_silhouette(m.verts, m.faces, c.to(self.dtype), **kw) for c in cams])
+        f, lo, hi = self.sdf_world(x, discrete)
+        kw = {} if sig is None else {"sigma": sig}
+        return torch.stack([sdf_silhouette(f, c.to(self.dtype), lo, hi, **kw) for c in cams])
+
+    def objective(self, x: torch.Tensor, discrete: dict, need_grad: bool):
+        x = x.detach().clone().requires_grad_(need_grad)
+        with torch.set_grad_enabled(need_grad):
+            extras: dict = {}
+            if isinstance(self.target, MaskTarget):
+                pred = self.render_soft(x, discrete)
+                tgt = self.target.masks.to(pred.dtype)
+                loss = L.LOSSES[self.s.loss](pred, tgt)
+                with torch.no_grad():
+                    hard = pred > 0.5
+                    t = tgt > 0.5
+                    inter = (hard & t).sum((-2, -1)).double()
+                    union = (hard | t).sum((-2, -1)).double().clamp(min=1)
+                    extras["iou"] = [round(float(v), 5) for v in inter / union]
+                    extras["area"] = [float(v) for v in pred.sum((-2, -1))]
+                    extras["soft_iou"] = round(float(L.soft_iou_loss(pred, tgt).neg().add(1)), 5)
+            else:
+                loss = self._mesh_loss(x, discrete)
+            if self.s.prior_weight > 0:
+                loss = loss + self.s.prior_weight * L.prior_loss(x[: self.n], self.u_ref.to(x.dtype))
+            grad = None
+            if need_grad:
+                (g,) = torch.autograd.grad(loss, x, allow_unused=True)
+                grad = torch.zeros_like(x) if g is None else g * self.pose_mask
+        return loss.detach(), grad, extras
+
+    def _mesh_loss(self, x: torch.Tensor, discrete: dict) -> torch.Tensor:
+        if self.gen.kind == "mesh":
+            m = self.mesh_world(x, discrete)
+            key = (tuple(sorted(discrete.items())), m.n_faces)
+            if key not in self._samplers:
+                gen_t = torch.Generator().manual_seed(self.s.seed + 1)
+                self._samplers[key] = L.SurfaceSampler.draw(m.verts, m.faces, self.target.samples, gen_t)
+            pts = self._samplers[key].points(m.verts)
+            return L.chamfer_loss(pts, self.target_pts.to(pts.dtype))
+        f, _, _ = self.sdf_world(x, discrete)
+        return (L.sdf_surface_loss(f(self.target_pts)) +
+                0.1 * L.occupancy_loss(f(self.vol_pts), self.vol_inside))
+
+
+# ----------------------------------------------------------------------------------------------
+# Initialization: a coarse grid over pose (and camera), best few kept
+# ----------------------------------------------------------------------------------------------
+
+def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4) -> list[tuple[torch.Tensor, dict]]:
+    """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale set from mask areas."""
+    ev.phase = "init"
+    yaws = [0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0] if prob.s.pose else [0.0]
+    cams = [None]
+    if prob.cam_fit:
+        cams = [(e, 3.2, f) for e in (5.0, 25.0, 45.0) for f in (25.0, 40.0, 60.0)]
+    d = dict(prob.d0)
+    scored = []
+    for cam in cams:
+        for yaw in yaws:
+            if ev.remaining <= 1:
+                break
+            x = prob.x0(yaw=yaw, camera=cam)
+            if isinstance(prob.target, MaskTarget) and prob.s.pose:
+                loss, _ = ev(x, d, grad=False)
+                area = ev.last.get("area")
+                tgt = prob.target.masks.sum((-2, -1))
+                if area is not None and min(area) > 0:
+                    s = float(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)))
+                    x = prob.x0(yaw=yaw, scale=float(np.clip(s, 0.26, 3.9)), camera=cam)
+            loss, _ = ev(x, d, grad=False)
+            scored.append((loss, x))
+    scored.sort(key=lambda s: s[0])
+    starts = [(x, d) for _, x in scored[:keep]] or [(prob.x0(), d)]
+    # presets as further starting points (for the discrete search), posed like the best start
+    best_pose = starts[0][0][prob.n:]
+    for name in sorted(prob.gen.presets):
+        if name == prob.s.preset:
+            continue
+        vals = prob.gen.values(name, prob.s.fix)
+        th, dd = prob.gen.split(vals, torch.float64)
+        x = torch.cat([prob.encode_params(th), best_pose])
+        starts.append((x, {k: v for k, v in dd.items()}))
+    return starts
+
+
+# ----------------------------------------------------------------------------------------------
+# The whole fit
+# ----------------------------------------------------------------------------------------------
+
+def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink: Callable[[dict], None] | None = None,
+            replay=(), progress: Callable[[Evaluator], None] | None = None) -> tuple[FitResult, Problem, dict]:
+    """Search, then polish; returns (FitResult, the problem, the best point ``{"x", "discrete"}``)."""
+    prob = Problem(gen, target, settings)
+    rng = np.random.default_rng(settings.seed)
+    torch.manual_seed(settings.seed)
+
+    ev = Evaluator(prob.objective, settings.budget, sink=sink, replay=replay, progress=progress)
+    t0 = time.perf_counter()
+    E = ev
+    try:
+        starts = initial_starts(prob, E)
+    except BudgetExhausted:
+        starts = [(prob.x0(), dict(prob.d0))]
+    space = D.Space(prob.m, np.arange(prob.n), list(prob.searched), starts,
+                    fixed_discrete={k: v for k, v in prob.d0.items() if k not in {p.name for p in prob.searched}})
+
+    def refine(x, d, steps):
+        if ev.remaining <= 0:
+            raise BudgetExhausted
+        return G.refine(E, x, d, min(steps, ev.remaining), settings.local, settings.lr, mask=prob.pose_mask)
+
+    polish = int(settings.budget * settings.polish) if settings.discrete != "none" else 0
+    ev.budget = max(ev.count + 1, settings.budget - polish)
+    strategy = D.STRATEGIES[settings.discrete]
+    if settings.discrete == "none" or not space.discrete:
+        D.multistart(E, space, refine, rng)
+    else:
+        kwargs = {"settings": settings.memetic} if settings.discrete == "memetic" else (
+            {"settings": settings.nlopt} if settings.discrete == "nlopt" else {})
+        strategy(E, space, refine, rng, **kwargs)
+    ev.budget = settings.budget
+    if ev.remaining > 0 and ev.best.x is not None:
+        ev.phase = "polish"
+        try:
+            G.refine(E, ev.best.x, ev.best.discrete, ev.remaining, settings.local, settings.lr / 2,
+                     mask=prob.pose_mask)
+        except BudgetExhausted:
+            pass
+    best = {"x": ev.best.x if ev.best.x is not None else starts[0][0], "discrete": ev.best.discrete or dict(prob.d0)}
+    values = prob.values(best["x"], best["discrete"])
+    result = FitResult(generator=gen.name, params=values, loss=float(ev.best.loss), evaluations=ev.count,
+                       wall_time_s=time.perf_counter() - t0)
+    return result, prob, best
+
+
+def hard_scores(prob: Problem, best: dict) -> dict:
+    """Exact per-view mask IoUs of the final shape (hard rasterizer) against the target masks."""
+    from ipm.metrics import mask_iou
+    from ipm.render.raster import rasterize
+
+    if not isinstance(prob.target, MaskTarget):
+        return {}
+    mesh = prob.mesh_world(best["x"].to(torch.float64), best["discrete"]).detach()
+    out = []
+    for cam, tgt in zip(prob.cameras(best["x"].to(torch.float64)), prob.target.masks):
+        mask = rasterize(mesh, cam).mask
+        out.append(mask_iou(np.asarray(mask), tgt.cpu().numpy() > 0.5))
+    return {"iou_per_view": out, "iou_mean": float(np.mean(out))}
