@@ -28,6 +28,7 @@ Eval = Callable[[torch.Tensor], torch.Tensor]
 Box = tuple[np.ndarray, np.ndarray]
 
 NODE_TYPES: dict[str, type[Node]] = {}
+EVAL_CHUNK = 1 << 18
 
 
 def register(cls: type[Node]) -> type[Node]:
@@ -291,7 +292,12 @@ class Tree:
             theta = self.theta(points.dtype, points.device)
         else:
             theta = theta.to(points.dtype)
-        return self._fn(coord_major(points), theta, ())
+        points = coord_major(points)
+        n = points.shape[0] if points.dim() == 2 else 0
+        if n > 2 * EVAL_CHUNK:
+            # cache-sized chunks: ~15% faster at 1e6 points on 2 cores (results/perf/sdf.md)
+            return torch.cat([self._fn(points[i:i + EVAL_CHUNK], theta, ()) for i in range(0, n, EVAL_CHUNK)])
+        return self._fn(points, theta, ())
 
     __call__ = sdf
 
