@@ -121,9 +121,9 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     run_dir = Path(run_dir)
     x = best["x"].to(torch.float64)
     mesh = prob.mesh_world(x, best["discrete"]).detach()
-    params = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x)}
+    params = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
     write_json(run_dir / "params.json", params)
-    meta = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x)}
+    meta = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
     export_mesh(mesh, run_dir / "mesh.glb", meta, sidecar=False)
     export_mesh(mesh, run_dir / "mesh.obj", meta, sidecar=False)
     files = {"params": "params.json", "mesh": ["mesh.glb", "mesh.obj"]}
@@ -148,7 +148,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     out = {
         "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
         "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),
-        "scores": scores, "params": result.params, "pose": prob.pose_json(x), "discrete": best["discrete"],
+        "scores": scores, "params": result.params, "pose": prob.pose_json(x, best["discrete"]), "discrete": best["discrete"],
         "files": files,
         "versions": {"ipm": ipm.__version__, "torch": torch.__version__, "numpy": np.__version__},
     }

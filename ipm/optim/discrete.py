@@ -8,6 +8,9 @@ evaluations). Strategies are registered by name in ``STRATEGIES``.
 - ``memetic``: a genetic algorithm whose offspring are refined by a short Adam run (Lamarckian), the
   thesis authors' method; defaults are theirs (mutation probability 0.2, Gaussian with 0.3 x range,
   50 Adam steps at lr 0.01), with tournament selection, one-point crossover, elitism and restarts.
+  Added to it: a local search on the discrete genes (every generation the elite's untried +-1
+  neighbours in each discrete value are refined too), because a count gene rarely moves under
+  mutation alone when budgets are small.
 - ``nlopt``: a derivative-free global algorithm of nlopt (GN_CRS2_LM, GN_ESCH or GN_ISRES) over the
   generator's normalized parameters with discrete coordinates rounded; each evaluation is refined
   briefly by gradient steps.
@@ -42,7 +45,7 @@ class Space:
 
     m: length of the normalized continuous vector; gen: indices of the generator's coordinates (the
     rest is pose and camera); discrete: the searched discrete parameters; starts: (x, discrete)
-    starting points, best first; sample_gen: draws random generator coordinates (numpy, in [0, 1]).
+    starting poses, best first; presets: the generator's presets posed like the best start.
     """
 
     m: int
@@ -50,6 +53,7 @@ class Space:
     discrete: list[Param]
     starts: list[tuple[torch.Tensor, dict]]
     fixed_discrete: dict = field(default_factory=dict)
+    presets: list[tuple[torch.Tensor, dict]] = field(default_factory=list)
 
     def encode(self, d: dict) -> np.ndarray:
         return np.array([(d[p.name] - p.lo) / max(p.hi - p.lo, 1) for p in self.discrete], dtype=np.float64)
@@ -71,6 +75,7 @@ class MemeticSettings:
     lr: float = 0.01
     stall_generations: int = 3
     min_diversity: float = 0.02
+    neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value
 
 
 @dataclass(frozen=True)
@@ -105,9 +110,30 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
         return _from_genome(space, g, pose0)
 
     ev.phase = "memetic:init"
-    candidates = list(space.starts)
+    # the best start, then the presets (diverse discrete values), then random individuals
+    candidates = [space.starts[0]] + list(space.presets)
     while len(candidates) < s.population:
         candidates.append(random_individual())
+    tried: set[tuple] = set()
+
+    def key(d: dict) -> tuple:
+        return tuple(sorted(d.items()))
+
+    def neighbours(elite) -> list[tuple[torch.Tensor, dict, float]]:
+        # tried from this elite's continuous values: a neighbour is retried when the elite changes
+        origin = tuple(np.round(elite[0].numpy(), 3))
+        out = []
+        for p in space.discrete:
+            for step in (-1, 1):
+                d = dict(elite[1])
+                d[p.name] = int(np.clip(d[p.name] + step, p.lo, p.hi))
+                if d == elite[1] or (key(d), origin) in tried:
+                    continue
+                tried.add((key(d), origin))
+                xr, loss = refine(elite[0], d, s.refine_steps)
+                out.append((xr, d, loss))
+        return out
+
     try:
         for x, d in candidates[: s.population]:
             xr, loss = refine(x, d, s.refine_steps)
@@ -130,6 +156,11 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
                 x, d = _from_genome(space, child, pop[a][0])  # pose and camera come from parent a
                 xr, loss = refine(x, d, s.refine_steps)
                 children.append((xr, d, loss))
+            if s.neighbours:
+                ev.phase = f"memetic:gen{generation}:neighbours"
+                children.sort(key=lambda p: p[2])
+                extra = neighbours(children[0])
+                children = sorted(children + extra, key=lambda p: p[2])[: s.population]
             pop = children
             gen_best = min(p[2] for p in pop)
             stall = stall + 1 if gen_best >= best - 1e-6 else 0
@@ -191,7 +222,7 @@ def nlopt_global(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Gen
 
 
 def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator,
-                       steps0: int = 20) -> None:
+                       steps0: int | None = None) -> None:
     """All discrete combinations, refined from the best start with successive halving."""
     ranges = [range(int(p.lo), int(p.hi) + 1) for p in space.discrete]
     combos = [dict(zip((p.name for p in space.discrete), c)) for c in itertools.product(*ranges)]
@@ -201,7 +232,10 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
                          "use memetic or nlopt")
     x0 = space.starts[0][0]
     alive = [(x0, {**space.fixed_discrete, **c}, math.inf) for c in combos]
-    steps, rnd = steps0, 0
+    # successive halving spends about steps0 * len(combos) per round, over log2(len) + 1 rounds
+    rounds = math.ceil(math.log2(len(combos))) + 1 if len(combos) > 1 else 1
+    steps = steps0 or max(5, ev.remaining // (len(combos) * rounds))
+    rnd = 0
     try:
         while alive:
             rnd += 1

@@ -59,6 +59,7 @@ class Evaluator:
         self.best = Best()
         self.phase = "start"
         self.last: dict = {}   # the latest record, live or replayed
+        self.best_by_discrete: dict[tuple, Best] = {}
         self.t0 = time.perf_counter()
 
     @property
@@ -101,9 +102,16 @@ class Evaluator:
             if self.sink is not None:
                 self.sink(rec)
         self.last = rec
+        key = tuple(sorted(disc.items()))
+        if loss < self.best_by_discrete.get(key, Best()).loss:
+            self.best_by_discrete[key] = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count)
         if loss < self.best.loss:
             self.best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count)
         self.count += 1
         if self.progress is not None:
             self.progress(self)
         return loss, g
+
+    def leaders(self, k: int) -> list[Best]:
+        """The best point of each of the ``k`` best discrete combinations."""
+        return sorted(self.best_by_discrete.values(), key=lambda b: b.loss)[:k]

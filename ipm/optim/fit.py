@@ -113,6 +113,33 @@ class FitSettings:
 # The problem: decode x, render, loss
 # ----------------------------------------------------------------------------------------------
 
+def _centroids(masks: torch.Tensor) -> list[list[float]]:
+    """Pixel centroids (x, y) of soft masks (K, H, W) (pixel centers at +0.5, row 0 at the top)."""
+    K, H, W = masks.shape
+    ys = torch.arange(H, dtype=masks.dtype, device=masks.device) + 0.5
+    xs = torch.arange(W, dtype=masks.dtype, device=masks.device) + 0.5
+    a = masks.sum((-2, -1)).clamp(min=1e-9)
+    cx = (masks.sum(-2) * xs).sum(-1) / a
+    cy = (masks.sum(-1) * ys).sum(-1) / a
+    return [[round(float(x), 4), round(float(y), 4)] for x, y in zip(cx, cy)]
+
+
+def translation_from_centroids(cams: list[Camera], rendered: list, target: list) -> list[float]:
+    """World translation (3,) moving rendered mask centroids onto the target's, by least squares over
+    views (one view constrains the two directions parallel to its image plane)."""
+    from ipm.render.camera import camera_frame
+
+    rows, rhs = [], []
+    for cam, (rx, ry), (tx, ty) in zip(cams, rendered, target):
+        frame = camera_frame(cam.to(torch.float64)).numpy()  # rows: right, up, backward
+        dist = float((cam.eye - cam.target).double().norm())
+        px = dist * 2.0 * math.tan(math.radians(float(cam.fov_deg)) / 2.0) / cam.height  # world size of a pixel
+        rows += [frame[0] / px, -frame[1] / px]
+        rhs += [tx - rx, ty - ry]
+    t, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+    return [float(np.clip(v, -T_RANGE, T_RANGE)) for v in t]
+
+
 def _rot_y(yaw_deg: torch.Tensor) -> torch.Tensor:
     a = yaw_deg * (math.pi / 180.0)
     c, s = torch.cos(a), torch.sin(a)
@@ -147,7 +174,8 @@ class Problem:
         self.pose_mask = torch.ones(self.m, dtype=torch.float64)
         if not settings.pose:
             self.pose_mask[self.n:self.n + 5] = 0
-        self.c0, self.L0 = self._canonical_frame()
+        self._frames: dict = {}
+        self.c0, self.L0 = self.frame(self.d0)
         self.u_ref = self.encode_params(self.theta0)
         if isinstance(target, MeshTarget):
             gen_t = torch.Generator().manual_seed(settings.seed)
@@ -201,29 +229,37 @@ class Problem:
         theta = self.decode(x.detach().double())[0]
         return self.gen.spec.from_vector(theta, {**self.d0, **discrete})
 
-    def pose_json(self, x: torch.Tensor) -> dict:
+    def pose_json(self, x: torch.Tensor, discrete: Mapping[str, int] | None = None) -> dict:
         _, t, yaw, scale, cam = self.decode(x.detach().double())
+        c0, L0 = self.frame(discrete or {})
         out = {"translation": [float(v) for v in t], "yaw_deg": float(yaw), "scale": float(scale),
-               "canonical_center": [float(v) for v in self.c0], "canonical_size": float(self.L0)}
+               "canonical_center": [float(v) for v in c0], "canonical_size": float(L0)}
         if cam is not None:
             out["camera"] = {"elevation_deg": float(cam[0]), "distance": float(cam[1]), "fov_deg": float(cam[2])}
         return out
 
     # -- geometry --------------------------------------------------------------------------------
-    def _canonical_frame(self) -> tuple[torch.Tensor, float]:
-        if self.gen.kind == "mesh":
-            v = self.gen.mesh(self.theta0, self.d0, self.s.lod).verts.detach().double()
-        else:
-            v = self.gen.to_mesh(self.start, resolution=48).verts.double()
-        if len(v) == 0:
-            raise ValueError(f"{self.gen.name}: the starting parameters give an empty shape")
-        lo, hi = v.min(0).values, v.max(0).values
-        return 0.5 * (lo + hi), float((hi - lo).max())
+    def frame(self, discrete: Mapping[str, int]) -> tuple[torch.Tensor, float]:
+        """Center (3,) and longest side of the shape with these discrete values at the starting
+        continuous values. It depends on the discrete values only, so that a search that changes a
+        count (floors, boxes) starts that candidate at the right size, and replays stay exact."""
+        d = {**self.d0, **discrete}
+        key = tuple(sorted(d.items()))
+        if key not in self._frames:
+            if self.gen.kind == "mesh":
+                v = self.gen.mesh(self.theta0, d, self.s.lod).verts.detach().double()
+            else:
+                v = self.gen.to_mesh(self.gen.spec.from_vector(self.theta0, d), resolution=48).verts.double()
+            if len(v) == 0:
+                raise ValueError(f"{self.gen.name}: the starting parameters give an empty shape for {d}")
+            lo, hi = v.min(0).values, v.max(0).values
+            self._frames[key] = (0.5 * (lo + hi), float((hi - lo).max()))
+        return self._frames[key]
 
-    def _to_world(self, p: torch.Tensor, t, yaw, scale) -> torch.Tensor:
+    def _to_world(self, p: torch.Tensor, t, yaw, scale, discrete: Mapping[str, int]) -> torch.Tensor:
+        c0, L0 = self.frame(discrete)
         R = _rot_y(yaw).to(p.dtype)
-        k = (2.0 / self.L0)
-        return scale.to(p.dtype) * ((p - self.c0.to(p.dtype)) * k) @ R.T + t.to(p.dtype)
+        return scale.to(p.dtype) * ((p - c0.to(p.dtype)) * (2.0 / L0)) @ R.T + t.to(p.dtype)
 
     def mesh_world(self, x: torch.Tensor, discrete: dict) -> TriMesh:
         """The posed mesh (world frame of the target); differentiable in ``x`` for mesh generators."""
@@ -234,23 +270,25 @@ class Problem:
         else:
             values = self.gen.spec.from_vector(theta.detach().double(), d)
             m = self.gen.to_mesh(values, resolution=self.s.resolution)
-        return TriMesh(self._to_world(m.verts.to(self.dtype), t, yaw, scale), m.faces, m.groups, m.group_names)
+        return TriMesh(self._to_world(m.verts.to(self.dtype), t, yaw, scale, d), m.faces, m.groups, m.group_names)
 
     def sdf_world(self, x: torch.Tensor, discrete: dict):
         """(f(points) -> distances in the world frame, lo (3,), hi (3,)) for SDF generators."""
         theta, t, yaw, scale, _ = self.decode(x)
-        tree = self.gen.tree_for({**self.d0, **discrete})
+        d = {**self.d0, **discrete}
+        tree = self.gen.tree_for(d)
         th = theta.to(self.dtype)
-        k = self.L0 / 2.0
+        c0, L0 = self.frame(d)
+        k = L0 / 2.0
         R = _rot_y(yaw).to(self.dtype)
         sc = scale.to(self.dtype)
 
         def f(p):
-            local = ((p - t.to(p.dtype)) @ R.to(p.dtype)) / (sc.to(p.dtype) / k) + self.c0.to(p.dtype)
+            local = ((p - t.to(p.dtype)) @ R.to(p.dtype)) / (sc.to(p.dtype) / k) + c0.to(p.dtype)
             return tree.sdf(th.to(p.dtype), local) * (sc.to(p.dtype) / k)
 
         lo, hi = tree.with_theta(theta.detach().double()).bounds()
-        r = float(np.linalg.norm(np.maximum(np.abs(lo - self.c0.numpy()), np.abs(hi - self.c0.numpy())))) / k
+        r = float(np.linalg.norm(np.maximum(np.abs(lo - c0.numpy()), np.abs(hi - c0.numpy())))) / k
         r *= float(scale.detach())
         c = t.detach().double().numpy()
         return f, c - r, c + r
@@ -263,20 +301,22 @@ class Problem:
 
         _, _, _, _, (elev, dist, fov) = self.decode(x)
         c0 = cams[0]
-        return [orbit_camera(torch.zeros((), dtype=elev.dtype), elev, dist, fov, c0.width, c0.height)]
+        return [orbit_camera(torch.zeros((), dtype=elev.dtype), elev, dist, fov_deg=fov, width=c0.width,
+                             height=c0.height)]
 
     # -- the objective ---------------------------------------------------------------------------
     def render_soft(self, x: torch.Tensor, discrete: dict) -> torch.Tensor:
         """Soft silhouettes ``(K, H, W)`` of the posed shape in every view."""
-        from ipm.render.sdf_silhouette import sdf_silhouette
-        from ipm.render.soft import soft_silhouette
-
         cams = self.cameras(x)
         sig = self.s.sigma or None
         if self.gen.kind == "mesh":
+            from ipm.render.soft import soft_silhouette
+
             m = self.mesh_world(x, discrete)
             kw = {} if sig is None else {"sigma": sig}
             return torch.stack([soft_silhouette(m.verts, m.faces, c.to(self.dtype), **kw) for c in cams])
+        from ipm.render.sdf_silhouette import sdf_silhouette
+
         f, lo, hi = self.sdf_world(x, discrete)
         kw = {} if sig is None else {"sigma": sig}
         return torch.stack([sdf_silhouette(f, c.to(self.dtype), lo, hi, **kw) for c in cams])
@@ -296,6 +336,7 @@ class Problem:
                     union = (hard | t).sum((-2, -1)).double().clamp(min=1)
                     extras["iou"] = [round(float(v), 5) for v in inter / union]
                     extras["area"] = [float(v) for v in pred.sum((-2, -1))]
+                    extras["centroid"] = _centroids(pred)
                     extras["soft_iou"] = round(float(L.soft_iou_loss(pred, tgt).neg().add(1)), 5)
             else:
                 loss = self._mesh_loss(x, discrete)
@@ -325,8 +366,9 @@ class Problem:
 # Initialization: a coarse grid over pose (and camera), best few kept
 # ----------------------------------------------------------------------------------------------
 
-def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4) -> list[tuple[torch.Tensor, dict]]:
-    """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale set from mask areas."""
+def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4):
+    """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale and translation set
+    from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best)."""
     ev.phase = "init"
     yaws = [0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0] if prob.s.pose else [0.0]
     cams = [None]
@@ -341,25 +383,34 @@ def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4) -> list[tuple[to
             x = prob.x0(yaw=yaw, camera=cam)
             if isinstance(prob.target, MaskTarget) and prob.s.pose:
                 loss, _ = ev(x, d, grad=False)
-                area = ev.last.get("area")
+                area, cen = ev.last.get("area"), ev.last.get("centroid")
                 tgt = prob.target.masks.sum((-2, -1))
                 if area is not None and min(area) > 0:
-                    s = float(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)))
-                    x = prob.x0(yaw=yaw, scale=float(np.clip(s, 0.26, 3.9)), camera=cam)
+                    s = float(np.clip(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)), 0.26, 3.9))
+                    t = (0.0, 0.0, 0.0)
+                    if cen is not None:
+                        cams_x = prob.cameras(x)
+                        # scaling about the canonical center moves the rendered centroid by a factor s
+                        # relative to the image center of the object; the offset is small, so ignore it
+                        t = translation_from_centroids(cams_x, cen, _centroids(prob.target.masks))
+                    x = prob.x0(yaw=yaw, scale=s, t=t, camera=cam)
             loss, _ = ev(x, d, grad=False)
             scored.append((loss, x))
     scored.sort(key=lambda s: s[0])
     starts = [(x, d) for _, x in scored[:keep]] or [(prob.x0(), d)]
-    # presets as further starting points (for the discrete search), posed like the best start
-    best_pose = starts[0][0][prob.n:]
+    return starts, preset_starts(prob, starts[0][0])
+
+
+def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tensor, dict]]:
+    """The generator's presets (other than the starting one) as (x, discrete), posed like ``x_best``."""
+    out = []
     for name in sorted(prob.gen.presets):
         if name == prob.s.preset:
             continue
         vals = prob.gen.values(name, prob.s.fix)
         th, dd = prob.gen.split(vals, torch.float64)
-        x = torch.cat([prob.encode_params(th), best_pose])
-        starts.append((x, {k: v for k, v in dd.items()}))
-    return starts
+        out.append((torch.cat([prob.encode_params(th), x_best[prob.n:]]), dict(dd)))
+    return out
 
 
 # ----------------------------------------------------------------------------------------------
@@ -377,11 +428,14 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     t0 = time.perf_counter()
     E = ev
     try:
-        starts = initial_starts(prob, E)
+        starts, presets = initial_starts(prob, E)
     except BudgetExhausted:
         starts = [(prob.x0(), dict(prob.d0))]
+        presets = preset_starts(prob, starts[0][0])
+    searched = {p.name for p in prob.searched}
     space = D.Space(prob.m, np.arange(prob.n), list(prob.searched), starts,
-                    fixed_discrete={k: v for k, v in prob.d0.items() if k not in {p.name for p in prob.searched}})
+                    fixed_discrete={k: v for k, v in prob.d0.items() if k not in searched},
+                    presets=[(x, {**prob.d0, **{k: v for k, v in d.items() if k in searched}}) for x, d in presets])
 
     def refine(x, d, steps):
         if ev.remaining <= 0:
@@ -398,13 +452,18 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
             {"settings": settings.nlopt} if settings.discrete == "nlopt" else {})
         strategy(E, space, refine, rng, **kwargs)
     ev.budget = settings.budget
-    if ev.remaining > 0 and ev.best.x is not None:
-        ev.phase = "polish"
+    # Polish: the two best discrete candidates share what is left (close competitors are often only
+    # separated after longer refinement), then the best of all gets the rest.
+    leaders = ev.leaders(2) if space.discrete else ev.leaders(1)
+    for i, lead in enumerate(leaders):
+        if ev.remaining <= 0:
+            break
+        ev.phase = f"polish:{i}"
+        share = ev.remaining // (len(leaders) - i)
         try:
-            G.refine(E, ev.best.x, ev.best.discrete, ev.remaining, settings.local, settings.lr / 2,
-                     mask=prob.pose_mask)
+            G.refine(E, lead.x, lead.discrete, share, settings.local, settings.lr / 2, mask=prob.pose_mask)
         except BudgetExhausted:
-            pass
+            break
     best = {"x": ev.best.x if ev.best.x is not None else starts[0][0], "discrete": ev.best.discrete or dict(prob.d0)}
     values = prob.values(best["x"], best["discrete"])
     result = FitResult(generator=gen.name, params=values, loss=float(ev.best.loss), evaluations=ev.count,
