@@ -1,0 +1,1 @@
+"""Reproducible benchmarks: experiment files, the method registry, the grid harness and tables."""

@@ -1,0 +1,144 @@
+"""Experiment files (``experiments/*.toml``): targets, views, methods, seeds, budget.
+
+    name = "small"
+    views = [1, 2]
+    seeds = [0, 1]
+    budget = 300
+    size = 128                        # input mask size (DESIGN.md: 256)
+    heldout_size = 128
+
+    [[targets]]
+    name = "cup_1"
+    mesh = "../shared/data/real/vessels/ocrtoc_mug.ply"   # relative to the experiment file's project root
+    up = "z"
+
+    [[targets]]
+    name = "mug_sample"
+    generator = "dishes"
+    preset = "mug"                    # or: random = true, seed = 3
+
+    [[methods]]
+    name = "ipm-dishes"
+    method = "ipm"
+    generator = "dishes"
+    discrete = "memetic"
+
+    [[methods]]
+    name = "visual-hull"
+    method = "visual-hull"
+    views = [2, 6, 12]                # a method may override the views it is given
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import tomllib
+
+
+@dataclass(frozen=True)
+class TargetSpec:
+    name: str
+    mesh: str | None = None
+    up: str = "y"
+    generator: str | None = None
+    preset: str | None = None
+    random: bool = False
+    seed: int = 0
+    params: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    name: str
+    method: str
+    views: tuple[int, ...] | None = None
+    settings: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One run of the grid: a method on a target from K views with a seed."""
+
+    target: str
+    method: str
+    views: int
+    seed: int
+
+    @property
+    def key(self) -> str:
+        return f"{self.target}|{self.method}|{self.views}|{self.seed}"
+
+
+@dataclass(frozen=True)
+class Experiment:
+    name: str
+    root: Path
+    targets: tuple[TargetSpec, ...]
+    methods: tuple[MethodSpec, ...]
+    views: tuple[int, ...] = (1,)
+    seeds: tuple[int, ...] = (0,)
+    budget: int = 1000
+    size: int = 256
+    heldout_size: int = 256
+    samples: int = 10_000
+    iou_resolution: int = 64
+
+    def cells(self) -> list[Cell]:
+        out = []
+        for t, m in itertools.product(self.targets, self.methods):
+            for k, s in itertools.product(m.views or self.views, self.seeds):
+                out.append(Cell(t.name, m.name, int(k), int(s)))
+        return out
+
+    def target(self, name: str) -> TargetSpec:
+        return next(t for t in self.targets if t.name == name)
+
+    def method(self, name: str) -> MethodSpec:
+        return next(m for m in self.methods if m.name == name)
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Parse and check an experiment file; ``ValueError`` names the problem."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"experiment file not found: {path}")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as e:
+        raise ValueError(f"experiment file {path} is not valid TOML: {e}") from None
+    from ipm.bench.methods import METHODS
+
+    # paths in the file are relative to the project root: the experiments folder's parent
+    root = path.resolve().parent.parent
+    targets = []
+    for i, t in enumerate(data.get("targets", [])):
+        if "name" not in t or (("mesh" in t) == ("generator" in t)):
+            raise ValueError(f"{path}: target {i} needs a name and exactly one of mesh or generator")
+        if t.get("up", "y") not in ("y", "z"):
+            raise ValueError(f"{path}: target {t['name']}: up must be y or z")
+        targets.append(TargetSpec(name=t["name"], mesh=t.get("mesh"), up=t.get("up", "y"),
+                                  generator=t.get("generator"), preset=t.get("preset"),
+                                  random=bool(t.get("random", False)), seed=int(t.get("seed", 0)),
+                                  params=dict(t.get("params", {}))))
+    methods = []
+    for i, m in enumerate(data.get("methods", [])):
+        if "name" not in m or "method" not in m:
+            raise ValueError(f"{path}: method {i} needs a name and a method")
+        if m["method"] not in METHODS:
+            raise ValueError(f"{path}: method {m['name']}: unknown method {m['method']!r}; "
+                             f"known: {', '.join(sorted(METHODS))}")
+        settings = {k: v for k, v in m.items() if k not in ("name", "method", "views")}
+        methods.append(MethodSpec(m["name"], m["method"], tuple(m["views"]) if "views" in m else None, settings))
+    if not targets or not methods:
+        raise ValueError(f"{path}: expected at least one [[targets]] and one [[methods]]")
+    names = [t.name for t in targets] + [m.name for m in methods]
+    if len(set(names)) != len(names):
+        raise ValueError(f"{path}: target and method names must be unique")
+    return Experiment(name=str(data.get("name", path.stem)), root=root, targets=tuple(targets),
+                      methods=tuple(methods), views=tuple(data.get("views", [1])),
+                      seeds=tuple(data.get("seeds", [0])), budget=int(data.get("budget", 1000)),
+                      size=int(data.get("size", 256)), heldout_size=int(data.get("heldout_size", 256)),
+                      samples=int(data.get("samples", 10_000)), iou_resolution=int(data.get("iou_resolution", 64)))

@@ -1,0 +1,66 @@
+"""``ipm bench EXPERIMENT.toml [-o DIR] [--workers N] [--scheduler ADDRESS] [--resume] [--dry-run]``."""
+
+from __future__ import annotations
+
+import datetime as dt
+import platform
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ipm.cli.common import JsonOpt, UsageError, emit
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def bench(
+        experiment: Annotated[Path, typer.Argument(help="experiment file (TOML)")],
+        output: Annotated[Path | None, typer.Option("-o", "--output", help="results folder "
+                                                    "(default results/<experiment name>)")] = None,
+        workers: Annotated[int, typer.Option(help="local worker processes")] = 1,
+        scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address (runs cells there)")] = None,
+        resume: Annotated[bool, typer.Option(help="skip cells already in rows.jsonl")] = False,
+        dry_run: Annotated[bool, typer.Option("--dry-run", help="list the cells to run and stop")] = False,
+        json_out: JsonOpt = False,
+    ) -> None:
+        """Run an experiment grid and write rows, tables and a README."""
+        import ipm
+        from ipm.bench.config import load_experiment
+        from ipm.bench.harness import run_experiment
+        from ipm.bench.tables import csv_text, latex, markdown
+        from ipm.io.atomic import write_text
+
+        if workers < 1:
+            raise UsageError(f"--workers: expected at least 1, got {workers}")
+        exp = load_experiment(experiment)
+        out = output or Path("results") / exp.name
+        from rich.console import Console
+
+        err = Console(stderr=True)
+
+        def progress(row, i, n):
+            err.print(f"[{i}/{n}] {row['key']}: {row.get('status')} "
+                      f"held-out IoU {row.get('heldout_iou', float('nan')):.3f} in {row.get('wall_time_s', 0)} s")
+
+        rows = run_experiment(experiment, out, workers=workers, scheduler=scheduler, resume=resume,
+                              dry_run=dry_run, progress=progress)
+        if dry_run:
+            emit({"todo": [r["key"] for r in rows]}, json_out)
+            return
+        write_text(out / "table.md", markdown(rows))
+        write_text(out / "table.csv", csv_text(rows))
+        write_text(out / "table.tex", latex(rows))
+        import torch
+
+        readme = "\n".join([
+            f"# {exp.name}", "",
+            f"Command: `ipm bench {experiment}{' -o ' + str(output) if output else ''}`  ",
+            f"Date: {dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds')}  ",
+            f"Machine: {platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores  ",
+            f"Versions: ipm {ipm.__version__}, torch {torch.__version__}, Python {platform.python_version()}", "",
+            f"Protocol: DESIGN.md (inputs {exp.size} px, 16 held-out views at {exp.heldout_size} px, "
+            f"budget {exp.budget} evaluations, seeds {list(exp.seeds)}).", "",
+            markdown(rows)])
+        write_text(out / "README.md", readme + "\n")
+        emit({"rows": str(out / "rows.jsonl"), "table": str(out / "table.md"), "cells": len(rows)}, json_out)

@@ -1,0 +1,109 @@
+"""The bench harness end to end on a small experiment, resume without recomputation, a Dask local
+cluster giving the same rows, and the tables."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from ipm.bench.config import load_experiment
+from ipm.bench.tables import latex, markdown
+
+ROOT = Path(__file__).resolve().parents[1]
+SMALL = ROOT / "experiments" / "small.toml"
+SHARED = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply").resolve()
+
+
+def small_experiment(tmp_path: Path, views=(1, 2)) -> Path:
+    """A copy of experiments/small.toml in a temporary project (so relative data paths still resolve)."""
+    pytest.importorskip("ipm.render.raster")
+    pytest.importorskip("ipm.render.sdf_silhouette")
+    if not SHARED.is_file():
+        pytest.skip(f"real data not found: {SHARED}")
+    proj = tmp_path / "proj"
+    (proj / "experiments").mkdir(parents=True)
+    text = SMALL.read_text().replace("../shared/data/real/vessels/ocrtoc_mug.ply", str(SHARED))
+    text = text.replace("views = [1, 2]", f"views = {list(views)}")
+    path = proj / "experiments" / "small.toml"
+    path.write_text(text)
+    return path
+
+
+def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
+    from ipm.cli import main
+
+    exp = small_experiment(tmp_path)
+    out = tmp_path / "res"
+    with pytest.raises(SystemExit) as e:
+        main(["bench", str(exp), "-o", str(out), "--json"])
+    assert e.value.code == 0, capsys.readouterr().err
+    rows = [json.loads(x) for x in (out / "rows.jsonl").read_text().splitlines()]
+    assert len(rows) == 4 and all(r["status"] == "ok" for r in rows), rows
+    vh = [r for r in rows if r["method"] == "visual-hull"]
+    assert all(0.3 < r["heldout_iou"] <= 1.0 for r in vh)
+    for name in ("table.md", "table.csv", "table.tex", "README.md"):
+        assert (out / name).is_file()
+    # resume: nothing is recomputed (rows unchanged, no new lines)
+    before = (out / "rows.jsonl").read_text()
+    with pytest.raises(SystemExit) as e:
+        main(["bench", str(exp), "-o", str(out), "--resume", "--json"])
+    assert e.value.code == 0
+    assert (out / "rows.jsonl").read_text() == before
+    # an interrupted bench (last row missing, torn line) resumes with only the missing cell
+    lines = before.splitlines()
+    (out / "rows.jsonl").write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:20])
+    with pytest.raises(SystemExit) as e:
+        main(["bench", str(exp), "-o", str(out), "--resume", "--json"])
+    assert e.value.code == 0
+    rows2 = [json.loads(x) for x in (out / "rows.jsonl").read_text().splitlines()]
+    assert len(rows2) == 4 and {r["key"] for r in rows2} == {r["key"] for r in rows}
+
+
+def test_existing_rows_without_resume_is_an_error(tmp_path):
+    from ipm.bench.harness import run_experiment
+
+    exp = small_experiment(tmp_path)
+    out = tmp_path / "res"
+    out.mkdir()
+    (out / "rows.jsonl").write_text(json.dumps({"key": "x", "status": "ok"}) + "\n")
+    with pytest.raises(ValueError, match="--resume"):
+        run_experiment(exp, out)
+
+
+def test_dask_local_cluster_gives_the_same_rows(tmp_path):
+    distributed = pytest.importorskip("dask.distributed")
+    from ipm.bench.harness import run_experiment
+
+    exp = small_experiment(tmp_path, views=(1,))
+    local = run_experiment(exp, tmp_path / "local")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=None) as cluster:
+        remote = run_experiment(exp, tmp_path / "dask", scheduler=cluster.scheduler_address)
+    strip = lambda rows: sorted(({k: v for k, v in r.items() if k != "wall_time_s"} for r in rows),  # noqa: E731
+                                key=lambda r: r["key"])
+    assert strip(local) == strip(remote)
+
+
+def test_tables_mark_the_best():
+    rows = [{"status": "ok", "method": m, "views": 1, "target": "t", "seed": s, "key": f"{m}{s}",
+             "heldout_iou": v, "chamfer_l1": c} for m, s, v, c in
+            [("a", 0, 0.9, 0.01), ("a", 1, 0.8, 0.02), ("b", 0, 0.5, 0.005)]]
+    md = markdown(rows)
+    assert "**0.850 ± 0.050**" in md and "**0.005 ± 0.000**" in md
+    assert "\\textbf{0.850 $\\pm$ 0.050}" in latex(rows)
+
+
+def test_bad_experiment_files(tmp_path):
+    bad = tmp_path / "x.toml"
+    bad.write_text("name = 'x'\n[[targets]]\nname='t'\n")
+    with pytest.raises(ValueError, match="exactly one of mesh or generator"):
+        load_experiment(bad)
+    bad.write_text("[[targets]]\nname='t'\nmesh='m.ply'\n[[methods]]\nname='m'\nmethod='magic'\n")
+    with pytest.raises(ValueError, match="unknown method 'magic'"):
+        load_experiment(bad)
+    with pytest.raises(ValueError, match="not found"):
+        load_experiment(tmp_path / "none.toml")
+    shutil.rmtree(tmp_path)
