@@ -88,6 +88,24 @@ class NloptSettings:
 NLOPT_GLOBAL = ("GN_CRS2_LM", "GN_ESCH", "GN_ISRES")
 
 
+def best_pose(ev: Evaluator, space: Space, x: torch.Tensor, d: dict) -> torch.Tensor:
+    """``x`` with the pose (and camera) of the kept start that suits discrete values ``d`` best.
+
+    The pose grid was ranked with the starting discrete values; another count (of floors, boxes) can
+    prefer another of the kept poses, so each is tried once (one evaluation, no gradient)."""
+    if len(space.starts) < 2:
+        return x
+    best, best_x = math.inf, x
+    gen = torch.as_tensor(space.gen)
+    for xs, _ in space.starts:
+        cand = xs.clone()
+        cand[gen] = x[gen]
+        loss, _ = ev(cand, d, grad=False)
+        if loss < best:
+            best, best_x = loss, cand
+    return best_x
+
+
 def _genome(space: Space, x: torch.Tensor, d: dict) -> np.ndarray:
     return np.concatenate([x.numpy()[space.gen], space.encode(d)])
 
@@ -136,7 +154,7 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
 
     try:
         for x, d in candidates[: s.population]:
-            xr, loss = refine(x, d, s.refine_steps)
+            xr, loss = refine(best_pose(ev, space, x, d), d, s.refine_steps)
             pop.append((xr, d, loss))
         best = min(p[2] for p in pop)
         stall, generation = 0, 0
@@ -176,7 +194,7 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
                 pop = [keep]
                 for _ in range(s.population - 1):
                     x, d = random_individual()
-                    x = _from_genome(space, _genome(space, x, d), keep[0])[0]
+                    x = best_pose(ev, space, x, d)
                     xr, loss = refine(x, d, s.refine_steps)
                     pop.append((xr, d, loss))
                 stall = 0
@@ -231,7 +249,12 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
                          f"{', '.join(p.name for p in space.discrete)}; at most {MAX_ENUMERATE} are allowed, "
                          "use memetic or nlopt")
     x0 = space.starts[0][0]
-    alive = [(x0, {**space.fixed_discrete, **c}, math.inf) for c in combos]
+    ev.phase = "enumerate:poses"
+    try:
+        alive = [(best_pose(ev, space, x0, {**space.fixed_discrete, **c}), {**space.fixed_discrete, **c}, math.inf)
+                 for c in combos]
+    except BudgetExhausted:
+        return
     # successive halving spends about steps0 * len(combos) per round, over log2(len) + 1 rounds
     rounds = math.ceil(math.log2(len(combos))) + 1 if len(combos) > 1 else 1
     steps = steps0 or max(5, ev.remaining // (len(combos) * rounds))
