@@ -49,15 +49,12 @@ def seed_everything(seed: int) -> np.random.Generator:
     """Seed Python, NumPy (returned Generator), torch and nlopt."""
     import random
 
+    import nlopt
+
     random.seed(seed)
     np.random.seed(seed % (2**32))
     torch.manual_seed(seed)
-    try:
-        import nlopt
-
-        nlopt.srand(seed)
-    except ImportError:
-        pass
+    nlopt.srand(seed)
     return np.random.default_rng(seed)
 
 

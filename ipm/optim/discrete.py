@@ -235,8 +235,8 @@ def nlopt_global(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Gen
     z0 = _genome(space, *space.starts[0])
     try:
         opt.optimize(z0)
-    except (nlopt.ForcedStop, nlopt.RoundoffLimited, ValueError, RuntimeError):
-        pass
+    except (nlopt.ForcedStop, nlopt.RoundoffLimited, ValueError, RuntimeError) as e:
+        log.debug("nlopt %s stopped: %s", settings.algorithm, type(e).__name__)
 
 
 def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator,

@@ -420,9 +420,12 @@ def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tenso
 def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink: Callable[[dict], None] | None = None,
             replay=(), progress: Callable[[Evaluator], None] | None = None) -> tuple[FitResult, Problem, dict]:
     """Search, then polish; returns (FitResult, the problem, the best point ``{"x", "discrete"}``)."""
+    import nlopt
+
     prob = Problem(gen, target, settings)
     rng = np.random.default_rng(settings.seed)
     torch.manual_seed(settings.seed)
+    nlopt.srand(settings.seed)  # GN_CRS2_LM, GN_ESCH and GN_ISRES are stochastic
 
     ev = Evaluator(prob.objective, settings.budget, sink=sink, replay=replay, progress=progress)
     t0 = time.perf_counter()

@@ -3,6 +3,7 @@ nlopt's bound-constrained gradient algorithms (LD_MMA, LD_LBFGS) fed with exact 
 
 from __future__ import annotations
 
+import logging
 import math
 
 import torch
@@ -11,6 +12,7 @@ from ipm.optim.evaluator import BudgetExhausted, Evaluator
 
 LOCAL = ("adam", "mma", "lbfgs")
 NLOPT_LOCAL = {"mma": "LD_MMA", "lbfgs": "LD_LBFGS"}
+log = logging.getLogger(__name__)
 
 
 def adam(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, lr: float = 0.01, *,
@@ -84,8 +86,9 @@ def nlopt_local(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, alg
     opt.set_min_objective(f)
     try:
         opt.optimize(x0[idx].numpy().copy())
-    except (nlopt.ForcedStop, nlopt.RoundoffLimited, ValueError, RuntimeError):
-        pass  # keep the best point seen; nlopt reports stops and stalls as exceptions
+    except (nlopt.ForcedStop, nlopt.RoundoffLimited, ValueError, RuntimeError) as e:
+        # nlopt reports budget stops and stalls as exceptions; the best point seen is kept
+        log.debug("nlopt %s stopped: %s", algorithm, type(e).__name__)
     return best["x"], best["loss"]
 
 

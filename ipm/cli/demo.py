@@ -2,7 +2,7 @@
 
 Today it shows the universal generator: meshes of the shipped trees, their Jacobians checked against
 float64 finite differences, and (when the renderer is installed) shaded previews.
-Run: ``python -m ipm.demo [OUT_DIR]``.
+Run: ``python -m ipm.cli.demo [OUT_DIR]`` (what ``make demo`` does).
 """
 
 from __future__ import annotations
