@@ -47,12 +47,21 @@ def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | No
     if (masks is None) == (target_mesh is None):
         raise ValueError("expected exactly one target: masks (a folder) or a target mesh")
     if masks is not None:
-        from ipm.io.masks import load_mask_set
+        from ipm.io.masks import CAMERAS_FILE, load_mask_set
 
-        m, cams = load_mask_set(Path(masks), require_cameras=(camera == "known"))
-        t = torch.as_tensor(m, dtype=dtype, device=device)
-        if t.max() > 1:
-            t = t / 255.0
+        folder = Path(masks)
+        if camera == "fit" and not (folder / CAMERAS_FILE).is_file():
+            m, cams = _masks_without_cameras(folder)
+        else:
+            if not (folder / CAMERAS_FILE).is_file():
+                raise ValueError(f"--masks {folder}: no {CAMERAS_FILE}; give the cameras, or recover them "
+                                 "with --camera fit")
+            ms = load_mask_set(folder)
+            m, cams = ms.masks, list(ms.cameras)
+            sizes = {(c.width, c.height) for c in cams}
+            if len(sizes) > 1:
+                raise ValueError(f"--masks {folder}: masks of different sizes {sorted(sizes)}; expected one size")
+        t = torch.as_tensor(m, device=device).to(dtype)
         return MaskTarget(t, [c.to(dtype=dtype, device=device) for c in cams])
     from ipm.io.meshes import load_mesh
 
@@ -60,6 +69,21 @@ def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | No
     if mesh.n_faces == 0:
         raise ValueError(f"target mesh {target_mesh} has no faces")
     return MeshTarget(mesh)
+
+
+def _masks_without_cameras(folder: Path):
+    """Masks ``view_*.png`` of one size and placeholder cameras (protocol pose) for ``camera="fit"``."""
+    import numpy as np
+
+    from ipm.io.masks import read_mask
+    from ipm.render.camera import orbit_camera
+
+    paths = sorted(folder.glob("view_*.png"))
+    if len(paths) != 1:
+        raise ValueError(f"--camera fit: expected exactly one mask view_000.png in {folder}, got {len(paths)}")
+    m = read_mask(paths[0])
+    H, W = m.shape
+    return np.stack([m]), [orbit_camera(0.0, 25.0, 3.2, fov_deg=40.0, width=W, height=H)]
 
 
 def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
@@ -128,23 +152,26 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     export_mesh(mesh, run_dir / "mesh.obj", meta, sidecar=False)
     files = {"params": "params.json", "mesh": ["mesh.glb", "mesh.obj"]}
     if isinstance(prob.target, MaskTarget):
-        from ipm.render.raster import rasterize
-        from ipm.viz.overlay import write_overlay
+        from ipm.io.atomic import atomic_path
+        from ipm.render.raster import rasterize_mesh
+        from ipm.viz.overlay import overlay
 
         overlays = []
         for i, (cam, tgt) in enumerate(zip(prob.cameras(x), prob.target.masks)):
-            pred = np.asarray(rasterize(mesh, cam).mask)
+            pred = rasterize_mesh(mesh, cam).mask.cpu().numpy()
             path = run_dir / f"overlay_{i:03d}.png"
-            write_overlay(tgt.cpu().numpy() > 0.5, pred, path)
+            with atomic_path(path) as tmp:
+                overlay(tgt.cpu().numpy() > 0.5, pred, title=f"view {i}: target red, fit green").save(tmp, "PNG")
             overlays.append(path.name)
         files["overlays"] = overlays
-    try:
-        from ipm.viz.plots import write_loss_plot
+    from ipm.io.runs import TRAJECTORY, read_trajectory
+    from ipm.viz.plots import plot_losses
 
-        write_loss_plot(run_dir / "trajectory.jsonl", run_dir / "loss.png")
+    losses = [r["loss"] for r in read_trajectory(run_dir / TRAJECTORY)]
+    if losses:
+        plot_losses({"loss": losses, "best so far": list(np.minimum.accumulate(losses))}, run_dir / "loss.png",
+                    title=f"{prob.gen.name}: loss per evaluation")
         files["loss_plot"] = "loss.png"
-    except ImportError:
-        pass
     out = {
         "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
         "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),

@@ -60,9 +60,9 @@ def _target_mesh(exp_path: str, name: str) -> tuple[TriMesh, dict | None, str | 
 
 
 def _masks(mesh: TriMesh, cams) -> np.ndarray:
-    from ipm.render.raster import rasterize
+    from ipm.render.raster import rasterize_mesh
 
-    return np.stack([np.asarray(rasterize(mesh, c).mask, dtype=bool) for c in cams])
+    return np.stack([rasterize_mesh(mesh, c).mask.cpu().numpy().astype(bool) for c in cams])
 
 
 def param_error(pred: dict, truth: dict, gen_name: str) -> dict:

@@ -477,13 +477,13 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
 def hard_scores(prob: Problem, best: dict) -> dict:
     """Exact per-view mask IoUs of the final shape (hard rasterizer) against the target masks."""
     from ipm.metrics import mask_iou
-    from ipm.render.raster import rasterize
+    from ipm.render.raster import rasterize_mesh
 
     if not isinstance(prob.target, MaskTarget):
         return {}
     mesh = prob.mesh_world(best["x"].to(torch.float64), best["discrete"]).detach()
     out = []
     for cam, tgt in zip(prob.cameras(best["x"].to(torch.float64)), prob.target.masks):
-        mask = rasterize(mesh, cam).mask
-        out.append(mask_iou(np.asarray(mask), tgt.cpu().numpy() > 0.5))
+        mask = rasterize_mesh(mesh, cam).mask.cpu().numpy()
+        out.append(mask_iou(mask, tgt.cpu().numpy() > 0.5))
     return {"iou_per_view": out, "iou_mean": float(np.mean(out))}
