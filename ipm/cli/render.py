@@ -1,0 +1,184 @@
+"""``ipm render MESH|GEN ... -o DIR``: exact masks, cameras.json and shaded previews (a target maker).
+
+With ``--masks DIR`` it renders in the cameras of an existing mask set instead and also writes
+target-vs-render overlays with their IoU.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ipm.cli.common import (
+    JsonOpt,
+    LibraryOpt,
+    ParamsOpt,
+    PresetOpt,
+    RandomOpt,
+    SeedOpt,
+    SetOpt,
+    UsageError,
+    emit,
+    resolve_params,
+)
+
+NEAR = 1e-3
+
+
+def _source_mesh(source: str, up: str, normalize: bool, resolution: int, library, param_opts: dict):
+    """The mesh to render: a mesh file, or a generator's output."""
+    from ipm.io.meshes import MESH_SUFFIXES, load_mesh, normalize_mesh, surface_area
+
+    path = Path(source)
+    if path.suffix.lower() in MESH_SUFFIXES:
+        if not path.is_file():
+            raise UsageError(f"mesh file not found: {path}")
+        used = [k for k, v in param_opts.items() if v]
+        if used:
+            raise UsageError(f"{', '.join(used)} apply to generators, not to a mesh file ({path})")
+        return load_mesh(path, up=up, normalize=normalize), {"mesh": str(path)}
+    if up != "y":
+        raise UsageError("--up applies to mesh files; generators are Y-up")
+    from ipm.generators import get_generator
+
+    g = get_generator(source, library=[str(p) for p in library] if library else None)
+    values = resolve_params(g, param_opts["--preset"], param_opts["--params"], param_opts["--set"],
+                            param_opts["--random"], param_opts["seed"])
+    if g.kind == "sdf":
+        from ipm.sdf.meshing import check_resolution
+
+        check_resolution(resolution, *g.tree.with_values(values).bounds())
+    mesh = g.to_mesh(values, resolution=resolution)
+    if mesh.n_faces == 0 or surface_area(mesh) <= 0:
+        raise UsageError(f"{source}: these parameters give an empty shape (no surface to render)")
+    if normalize:
+        mesh = normalize_mesh(mesh)
+    return mesh, {"generator": g.name, "params": dict(values)}
+
+
+def _cameras(views: int | None, cameras: Path | None, masks: Path | None, size: int | None):
+    from ipm.render.camera import input_views, load_cameras
+
+    given = [n for n, v in (("--views", views), ("--cameras", cameras), ("--masks", masks)) if v is not None]
+    if len(given) > 1:
+        raise UsageError(f"give one of --views, --cameras and --masks, got {' and '.join(given)}")
+    if size is not None and (cameras is not None or masks is not None):
+        raise UsageError("--size applies to --views; with --cameras or --masks each view's size comes "
+                         "from cameras.json")
+    if cameras is not None:
+        if cameras.is_dir():
+            cameras = cameras / "cameras.json"
+        if not cameras.is_file():
+            raise UsageError(f"cameras file not found: {cameras}")
+        return load_cameras(cameras), None
+    if masks is not None:
+        from ipm.io.masks import load_mask_set
+
+        ms = load_mask_set(masks)
+        return list(ms.cameras), ms
+    k = 4 if views is None else views
+    if not 1 <= k <= 256:
+        raise UsageError(f"--views: expected a number of views in 1..256, got {k}")
+    s = 256 if size is None else size
+    if not 8 <= s <= 8192:
+        raise UsageError(f"--size: expected an image size in 8..8192 pixels, got {s}")
+    return input_views(k, s), None
+
+
+def _check_outside(mesh, cameras) -> None:
+    """Every vertex must be in front of every camera (a camera inside the object cannot see it whole)."""
+    from ipm.render.camera import project
+
+    for i, cam in enumerate(cameras):
+        _, depth = project(mesh.verts.detach(), cam.to(dtype=mesh.verts.dtype))
+        dmin = float(depth.min())
+        if dmin <= NEAR:
+            eye = ", ".join(f"{v:.3g}" for v in cam.eye.tolist())
+            raise UsageError(f"camera {i} at ({eye}) is inside the object or too close to it: part of the "
+                             f"mesh is behind the camera (nearest depth {dmin:.3g}); move the camera out")
+
+
+def register(app: typer.Typer) -> None:
+    @app.command()
+    def render(
+        source: Annotated[str, typer.Argument(metavar="MESH|GEN", help="mesh file (.ply, .obj, .stl, .glb, "
+                                              ".off) or a generator name, tree preset or tree file (.json)")],
+        output: Annotated[Path, typer.Option("-o", "--output", help="output folder (created)")],
+        preset: PresetOpt = None,
+        params: ParamsOpt = None,
+        set_: SetOpt = None,
+        random: RandomOpt = False,
+        seed: SeedOpt = 0,
+        up: Annotated[str, typer.Option(help="up axis of a mesh file: y or z (converted to Y up)")] = "y",
+        normalize: Annotated[bool, typer.Option("--normalize/--no-normalize",
+                                                help="center the bounding box and scale its longest side "
+                                                     "to 2 (the evaluation protocol)")] = True,
+        views: Annotated[int | None, typer.Option(help="K protocol input views: FOV 40, distance 3.2, "
+                                                       "elevation 25, azimuths 30 + k 360/K [default: 4]")] = None,
+        cameras: Annotated[Path | None, typer.Option(help="cameras.json (or a folder holding one) to render "
+                                                          "instead of the protocol views")] = None,
+        masks: Annotated[Path | None, typer.Option(help="a mask set folder: render in its cameras and also "
+                                                        "write overlays with the IoU against its masks")] = None,
+        size: Annotated[int | None, typer.Option(help="image size in pixels for --views [default: 256]")] = None,
+        resolution: Annotated[int, typer.Option(help="marching-cubes samples along the longest side "
+                                                     "(SDF generators)")] = 128,
+        preview_views: Annotated[bool, typer.Option("--previews/--no-previews",
+                                                    help="also write shaded previews")] = True,
+        library: LibraryOpt = None,
+        json_out: JsonOpt = False,
+    ) -> None:
+        """Render exact masks (view_000.png ...), cameras.json and shaded previews (preview_000.png ...)."""
+        import numpy as np
+
+        from ipm.io.masks import CAMERAS_FILE, save_mask_set, staged_directory, view_name
+        from ipm.render.preview import save_png, shade
+        from ipm.render.raster import rasterize
+
+        if up.lower() not in ("y", "z"):
+            raise UsageError(f"--up: expected y or z, got {up!r}")
+        if output.exists() and not output.is_dir():
+            raise UsageError(f"output {output}: expected a folder, got a file")
+        if not 8 <= resolution <= 2048:
+            raise UsageError(f"--resolution: expected 8..2048 samples, got {resolution}")
+        cams, target = _cameras(views, cameras, masks, size)
+        param_opts = {"--preset": preset, "--params": params, "--set": set_, "--random": random, "seed": seed}
+        mesh, about = _source_mesh(source, up.lower(), normalize, resolution, library, param_opts)
+        _check_outside(mesh, cams)
+
+        result = {"dir": str(output), "views": len(cams), "faces": mesh.n_faces, **about}
+        rendered, pictures, ious = [], [], []
+        for cam in cams:
+            fr = rasterize(mesh.verts, mesh.faces, cam, near=NEAR)
+            rendered.append(fr.mask.cpu().numpy())
+            if preview_views:
+                pictures.append(shade(fr.mask, fr.normal, cam))
+        empty = [i for i, m in enumerate(rendered) if not m.any()]
+        if empty:
+            import logging
+
+            logging.getLogger("ipm").warning("the object is outside views %s: their masks are empty",
+                                             ", ".join(map(str, empty)))
+        with staged_directory(output) as tmp:
+            save_mask_set(tmp, rendered, cams)
+            for i, pic in enumerate(pictures):
+                save_png(tmp / f"preview_{i:03d}.png", pic)
+            if target is not None:
+                from ipm.viz import mask_iou, overlay
+
+                for i, (cam, m) in enumerate(zip(cams, rendered)):
+                    t = target.masks[i, : cam.height, : cam.width].numpy()
+                    ious.append(mask_iou(t, m))
+                    overlay(t, m, f"view {i}").save(tmp / f"overlay_{i:03d}.png", format="PNG")
+        result["masks"] = [str(output / view_name(i)) for i in range(len(cams))]
+        result["cameras"] = str(output / CAMERAS_FILE)
+        if pictures:
+            result["previews"] = [str(output / f"preview_{i:03d}.png") for i in range(len(pictures))]
+        if ious:
+            result["iou"] = [round(v, 6) for v in ious]
+            result["mean_iou"] = round(float(np.mean(ious)), 6)
+        if json_out:
+            emit(result, True)
+        else:
+            emit({k: v for k, v in result.items() if k not in ("params", "masks", "previews")}, False)

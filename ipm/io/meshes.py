@@ -1,0 +1,103 @@
+"""Loading target meshes: read with trimesh, convert the up axis to Y, normalize (DESIGN.md's protocol).
+
+The evaluation protocol normalizes every target: up axis first, then the bounding box's center goes to
+the origin and its longest side becomes 2. Vertex order is kept (``process=False``); scenes (GLB) are
+flattened into one mesh with their transforms applied.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ipm.types import TriMesh
+
+log = logging.getLogger(__name__)
+
+MESH_SUFFIXES = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
+
+
+def _z_up(v: torch.Tensor) -> torch.Tensor:
+    # rotate -90 degrees about X: (x, y, z) -> (x, z, -y); right-handed stays right-handed
+    return torch.stack([v[:, 0], v[:, 2], -v[:, 1]], 1)
+
+
+# Up-axis conversions to the project's Y-up convention, by the name given with ``--up``.
+UP_AXES: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
+    "y": lambda v: v,
+    "z": _z_up,
+}
+
+
+def to_y_up(verts: torch.Tensor, up: str) -> torch.Tensor:
+    """Vertices (V, 3) rotated so that the axis named ``up`` ("y" or "z") becomes +Y."""
+    try:
+        return UP_AXES[up.lower()](verts)
+    except KeyError:
+        raise ValueError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}") from None
+
+
+def normalize_mesh(mesh: TriMesh) -> TriMesh:
+    """Bounding-box center to the origin and longest side 2 (the evaluation protocol).
+
+    Raises ``ValueError`` for an empty mesh or one whose bounding box has zero extent.
+    """
+    if mesh.n_verts == 0 or mesh.n_faces == 0:
+        raise ValueError(f"normalize: expected a mesh with faces, got {mesh.n_verts} vertices and "
+                         f"{mesh.n_faces} faces")
+    used = mesh.verts[torch.unique(mesh.faces)]
+    lo, hi = used.amin(0), used.amax(0)
+    size = float((hi - lo).max())
+    if not size > 0:
+        raise ValueError("normalize: expected a mesh with a nonzero extent, got all vertices at one point")
+    verts = (mesh.verts - (lo + hi) / 2) * (2.0 / size)
+    return TriMesh(verts, mesh.faces, mesh.groups, mesh.group_names)
+
+
+def surface_area(mesh: TriMesh) -> float:
+    """Total triangle area of the mesh."""
+    v = mesh.verts.detach().double()[mesh.faces]
+    return float(torch.linalg.vector_norm(torch.linalg.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), dim=-1)
+                 .sum() / 2) if mesh.n_faces else 0.0
+
+
+def load_mesh(path: str | Path, *, up: str = "y", normalize: bool = True,
+              dtype: torch.dtype = torch.float64) -> TriMesh:
+    """Read a mesh file (.ply, .obj, .stl, .glb, .gltf, .off) as a Y-up :class:`~ipm.types.TriMesh`.
+
+    up: the file's up axis ("y" or "z"); normalize: center the bounding box and scale its longest
+    side to 2. Raises ``ValueError`` ("expected ..., got ...") for a missing or unreadable file, an
+    unknown format, or a mesh without triangles or area.
+    """
+    import trimesh
+
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"mesh file: expected an existing file, got {path}")
+    if path.suffix.lower() not in MESH_SUFFIXES:
+        raise ValueError(f"mesh file {path}: expected a suffix among {', '.join(MESH_SUFFIXES)}, "
+                         f"got {path.suffix or '(none)'}")
+    if up.lower() not in UP_AXES:
+        raise ValueError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}")
+    kwargs = {"skip_materials": True} if path.suffix.lower() in (".obj", ".ply") else {}
+    try:
+        tm = trimesh.load_mesh(str(path), process=False, **kwargs)
+    except Exception as e:  # trimesh raises many kinds of errors for broken files
+        raise ValueError(f"mesh file {path}: expected a readable {path.suffix} mesh, got an error: "
+                         f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+    faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+    verts = np.asarray(getattr(tm, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
+    if len(faces) == 0:
+        raise ValueError(f"mesh file {path}: expected triangles, got none")
+    if not np.isfinite(verts).all():
+        raise ValueError(f"mesh file {path}: expected finite vertex coordinates, got NaN or inf")
+    mesh = TriMesh(to_y_up(torch.as_tensor(verts, dtype=dtype), up), torch.as_tensor(faces))
+    if surface_area(mesh) <= 0:
+        raise ValueError(f"mesh file {path}: expected a mesh with nonzero surface area, got zero-area "
+                         f"triangles only")
+    log.debug("loaded %s: %d vertices, %d faces", path, mesh.n_verts, mesh.n_faces)
+    return normalize_mesh(mesh) if normalize else mesh

@@ -1,0 +1,30 @@
+"""Rendering on the CPU: cameras, differentiable soft silhouettes of meshes and SDFs, exact masks,
+depth and normals, and shaded previews.
+
+Shading is kept apart from rasterization: :mod:`~ipm.render.soft` (SoftRas silhouettes of meshes,
+differentiable), :mod:`~ipm.render.sdf_silhouette` (silhouettes, depth and normals of SDFs),
+:mod:`~ipm.render.raster` (hard z-buffer for evaluation masks, depth, normals, face ids) and
+:mod:`~ipm.render.preview` (Lambert shading into PNG). Camera math lives in :mod:`~ipm.render.camera`.
+"""
+
+from ipm.render.camera import (
+    heldout_views,
+    input_views,
+    load_cameras,
+    look_at_camera,
+    orbit_camera,
+    pixel_rays,
+    project,
+    projection,
+    save_cameras,
+    view_matrix,
+)
+from ipm.render.raster import Fragments, hard_mask, rasterize
+from ipm.render.sdf_silhouette import sdf_depth_normals, sdf_silhouette
+from ipm.render.soft import soft_silhouette, soft_silhouettes
+
+__all__ = [
+    "Fragments", "hard_mask", "heldout_views", "input_views", "load_cameras", "look_at_camera",
+    "orbit_camera", "pixel_rays", "project", "projection", "rasterize", "save_cameras", "sdf_depth_normals",
+    "sdf_silhouette", "soft_silhouette", "soft_silhouettes", "view_matrix",
+]

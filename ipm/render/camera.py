@@ -1,0 +1,279 @@
+"""Camera math as pure functions: look-at and orbit cameras, view and projection matrices, projection of
+points to pixels, pixel rays, and the evaluation-protocol view sets of DESIGN.md.
+
+Conventions (DESIGN.md): right-handed world, Y up; the camera looks down -Z in camera space (OpenGL);
+vertical field of view in degrees; image row 0 is the top and pixel ``(col i, row j)`` has its center at
+``(i + 0.5, j + 0.5)``. Screen coordinates are returned as ``(x, y)`` in pixels with x to the right and
+y down; depth is the distance along the viewing axis (positive in front of the camera).
+
+Everything is differentiable in every camera quantity (eye, target, up, fov) and follows the dtype and
+device of the camera's tensors.
+
+Orbit convention: ``eye = target + distance * (cos(el) sin(az), sin(el), cos(el) cos(az))``, so azimuth 0
+looks from +Z towards the target, azimuth 90° from +X (a positive rotation about +Y, counterclockwise
+seen from above), and positive elevation looks down from above.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+import torch
+
+from ipm.types import Camera
+
+# The evaluation protocol (DESIGN.md).
+PROTOCOL_FOV_DEG = 40.0
+PROTOCOL_DISTANCE = 3.2
+PROTOCOL_ELEVATION_DEG = 25.0
+
+
+def _as_tensor(x, like: torch.Tensor | None = None, dtype=torch.float64) -> torch.Tensor:
+    if torch.is_tensor(x):
+        return x
+    if like is not None:
+        return torch.as_tensor(x, dtype=like.dtype, device=like.device)
+    return torch.as_tensor(x, dtype=dtype)
+
+
+def _normalize(v: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
+    return v / torch.linalg.vector_norm(v, dim=-1, keepdim=True).clamp_min(eps)
+
+
+def look_at_camera(eye, target, up=(0.0, 1.0, 0.0), fov_deg=PROTOCOL_FOV_DEG, width: int = 256,
+                   height: int | None = None) -> Camera:
+    """A :class:`~ipm.types.Camera` at ``eye`` looking at ``target``.
+
+    eye, target, up: (3,) tensors or sequences (tensors keep their dtype, device and grad);
+    fov_deg: vertical field of view in degrees; width, height: image size (height defaults to width).
+    Raises ``ValueError`` when eye == target or up is parallel to the viewing direction.
+    """
+    eye_t = _as_tensor(eye)
+    target_t = _as_tensor(target, eye_t)
+    up_t = _as_tensor(up, eye_t)
+    fov_t = _as_tensor(fov_deg, eye_t)
+    cam = Camera(eye_t, target_t, up_t, fov_t, int(width), int(height if height is not None else width))
+    check_camera(cam)
+    return cam
+
+
+def check_camera(cam: Camera) -> None:
+    """Raise ``ValueError`` if the look-at frame is degenerate (eye == target, up parallel to the view)."""
+    fwd = (cam.target - cam.eye).detach().double()
+    n = float(torch.linalg.vector_norm(fwd))
+    if not n > 1e-12:
+        raise ValueError(f"camera: expected eye != target, got eye = target = {cam.eye.tolist()}")
+    up = cam.up.detach().double()
+    nu = float(torch.linalg.vector_norm(up))
+    if not nu > 1e-12:
+        raise ValueError("camera: expected a nonzero up vector, got (0, 0, 0)")
+    s = float(torch.linalg.vector_norm(torch.linalg.cross(fwd / n, up / nu)))
+    if s < 1e-6:
+        raise ValueError(f"camera: expected an up vector not parallel to the viewing direction, got up "
+                         f"{up.tolist()} and direction {(fwd / n).tolist()}")
+
+
+def orbit_eye(azimuth_deg, elevation_deg, distance, target=(0.0, 0.0, 0.0)) -> torch.Tensor:
+    """Eye position (3,) on an orbit around ``target`` (see the module docstring for the convention)."""
+    az = _as_tensor(azimuth_deg)
+    el = _as_tensor(elevation_deg, az)
+    dist = _as_tensor(distance, az)
+    tgt = _as_tensor(target, az)
+    az_r, el_r = torch.deg2rad(az), torch.deg2rad(el)
+    d = torch.stack([torch.cos(el_r) * torch.sin(az_r), torch.sin(el_r), torch.cos(el_r) * torch.cos(az_r)])
+    return tgt + dist * d.to(tgt.dtype)
+
+
+def orbit_camera(azimuth_deg, elevation_deg, distance=PROTOCOL_DISTANCE, target=(0.0, 0.0, 0.0),
+                 fov_deg=PROTOCOL_FOV_DEG, width: int = 256, height: int | None = None) -> Camera:
+    """A camera on an orbit around ``target``, Y up, looking at ``target``.
+
+    azimuth_deg, elevation_deg, distance, fov_deg: floats or 0-dim tensors (differentiable);
+    target: (3,). Raises ``ValueError`` for |elevation| >= 90° or distance <= 0.
+    """
+    el = float(torch.as_tensor(elevation_deg).detach())
+    if not abs(el) < 90.0:
+        raise ValueError(f"orbit camera elevation: expected a value in (-90, 90) degrees, got {el}")
+    dist = float(torch.as_tensor(distance).detach())
+    if not dist > 0:
+        raise ValueError(f"orbit camera distance: expected a positive value, got {dist}")
+    eye = orbit_eye(azimuth_deg, elevation_deg, distance, target)
+    tgt = _as_tensor(target, eye)
+    up = torch.tensor([0.0, 1.0, 0.0], dtype=eye.dtype, device=eye.device)
+    return look_at_camera(eye, tgt, up, _as_tensor(fov_deg, eye), width, height)
+
+
+def detach_camera(cam: Camera) -> Camera:
+    """The same camera with its tensors detached from any autograd graph."""
+    return Camera(cam.eye.detach(), cam.target.detach(), cam.up.detach(), cam.fov_deg.detach(),
+                  cam.width, cam.height)
+
+
+def camera_frame(cam: Camera) -> torch.Tensor:
+    """Rotation (3, 3) whose rows are the camera's right, up and backward (+Z) axes in world space."""
+    fwd = _normalize(cam.target - cam.eye)
+    right = _normalize(torch.linalg.cross(fwd, cam.up.to(fwd.dtype)))
+    up = torch.linalg.cross(right, fwd)
+    return torch.stack([right, up, -fwd])
+
+
+def view_matrix(cam: Camera) -> torch.Tensor:
+    """World-to-camera transform (4, 4), same dtype and device as ``cam.eye``."""
+    R = camera_frame(cam)
+    t = -(R @ cam.eye)
+    top = torch.cat([R, t[:, None]], dim=1)
+    bottom = torch.tensor([[0.0, 0.0, 0.0, 1.0]], dtype=R.dtype, device=R.device)
+    return torch.cat([top, bottom], dim=0)
+
+
+def projection(cam: Camera, near: float = 0.01, far: float = 100.0) -> torch.Tensor:
+    """OpenGL perspective projection matrix (4, 4): camera space to clip space (NDC in [-1, 1]^3)."""
+    if not 0 < near < far:
+        raise ValueError(f"projection: expected 0 < near < far, got near={near}, far={far}")
+    f = 1.0 / torch.tan(torch.deg2rad(cam.fov_deg.to(cam.eye.dtype)) / 2)
+    aspect = cam.width / cam.height
+    zero = torch.zeros((), dtype=f.dtype, device=f.device)
+    one = zero + 1.0
+    rows = [
+        torch.stack([f / aspect, zero, zero, zero]),
+        torch.stack([zero, f, zero, zero]),
+        torch.stack([zero, zero, zero + (far + near) / (near - far), zero + 2 * far * near / (near - far)]),
+        torch.stack([zero, zero, -one, zero]),
+    ]
+    return torch.stack(rows)
+
+
+def focal_pixels(cam: Camera) -> torch.Tensor:
+    """Focal length in pixels, 0-dim: ``height / (2 tan(fov / 2))`` (square pixels)."""
+    return cam.height / (2 * torch.tan(torch.deg2rad(cam.fov_deg.to(cam.eye.dtype)) / 2))
+
+
+def to_camera_space(points: torch.Tensor, cam: Camera) -> torch.Tensor:
+    """Points (..., 3) in camera coordinates (..., 3); the camera looks down -Z."""
+    R = camera_frame(cam).to(points.dtype)
+    return (points - cam.eye.to(points.dtype)) @ R.T
+
+
+def project(points: torch.Tensor, cam: Camera, eps: float = 1e-9) -> tuple[torch.Tensor, torch.Tensor]:
+    """Project world points to pixels.
+
+    points: (..., 3) float. Returns ``(xy (..., 2), depth (...))``: pixel coordinates (x right, y down,
+    pixel centers at +0.5) and depth along the viewing axis (positive in front of the camera). Points
+    at or behind the camera get meaningless pixel coordinates; check ``depth > 0``.
+    """
+    if points.shape[-1:] != (3,):
+        raise ValueError(f"project: expected points (..., 3), got {tuple(points.shape)}")
+    pc = to_camera_space(points, cam)
+    depth = -pc[..., 2]
+    fpx = focal_pixels(cam).to(points.dtype)
+    inv = 1.0 / torch.where(depth.abs() > eps, depth, torch.full_like(depth, eps))
+    x = cam.width / 2 + fpx * pc[..., 0] * inv
+    y = cam.height / 2 - fpx * pc[..., 1] * inv
+    return torch.stack([x, y], dim=-1), depth
+
+
+def pixel_rays(cam: Camera, dtype=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """Rays through the pixel centers.
+
+    Returns ``(origin (3,), directions (H, W, 3))``: unit directions in world space, row 0 at the top.
+    Differentiable in the camera; dtype defaults to the camera's.
+    """
+    dtype = dtype or cam.eye.dtype
+    dev = cam.eye.device
+    fpx = focal_pixels(cam).to(dtype)
+    xs = torch.arange(cam.width, dtype=dtype, device=dev) + 0.5
+    ys = torch.arange(cam.height, dtype=dtype, device=dev) + 0.5
+    u = (xs - cam.width / 2) / fpx
+    v = -(ys - cam.height / 2) / fpx
+    d_cam = torch.stack(torch.broadcast_tensors(u[None, :], v[:, None], -torch.ones_like(v)[:, None]), -1)
+    R = camera_frame(cam).to(dtype)
+    d = _normalize(d_cam @ R)
+    return cam.eye.to(dtype), d
+
+
+def input_views(k: int, size: int = 256) -> list[Camera]:
+    """The protocol's K input views: FOV 40°, distance 3.2, elevation 25°, azimuths 30° + k·360°/K."""
+    if not isinstance(k, int) or k < 1:
+        raise ValueError(f"input views: expected a positive number of views, got {k}")
+    _check_size(size)
+    return [orbit_camera(30.0 + i * 360.0 / k, PROTOCOL_ELEVATION_DEG, PROTOCOL_DISTANCE,
+                         fov_deg=PROTOCOL_FOV_DEG, width=size, height=size) for i in range(k)]
+
+
+def heldout_views(size: int = 256) -> list[Camera]:
+    """The protocol's 16 held-out views: azimuths 11.25° + k·22.5°, elevations 10° and 40° alternating."""
+    _check_size(size)
+    return [orbit_camera(11.25 + i * 22.5, 10.0 if i % 2 == 0 else 40.0, PROTOCOL_DISTANCE,
+                         fov_deg=PROTOCOL_FOV_DEG, width=size, height=size) for i in range(16)]
+
+
+def _check_size(size: int) -> None:
+    if not isinstance(size, int) or size < 1:
+        raise ValueError(f"image size: expected a positive integer, got {size!r}")
+
+
+# -- cameras.json ------------------------------------------------------------------------------------
+
+def cameras_to_json(cameras: Sequence[Camera]) -> str:
+    """cameras.json text: a JSON list with one ``{eye, target, up, fov_deg, width, height}`` per view."""
+    return json.dumps([c.to_json() for c in cameras], indent=2) + "\n"
+
+
+def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera]:
+    """Cameras from parsed cameras.json data (a list of entries, or ``{"cameras": [...]}``).
+
+    Raises ``ValueError`` naming the entry and the missing or malformed field.
+    """
+    if isinstance(data, dict) and "cameras" in data:
+        data = data["cameras"]
+    if not isinstance(data, list):
+        raise ValueError(f"{source}: expected a JSON list of camera entries, got {type(data).__name__}")
+    cams = []
+    for i, entry in enumerate(data):
+        if not isinstance(entry, dict):
+            raise ValueError(f"{source}: entry {i}: expected an object with eye, target, up, fov_deg, "
+                             f"width, height, got {type(entry).__name__}")
+        try:
+            for key in ("eye", "target", "up"):
+                v = entry.get(key)
+                if not (isinstance(v, list) and len(v) == 3 and all(_is_number(x) for x in v)):
+                    if key not in entry:
+                        break  # reported by Camera.from_json with the list of fields
+                    raise ValueError(f"{key}: expected a list of 3 numbers, got {v!r}")
+            for key in ("width", "height"):
+                if key in entry and not (isinstance(entry[key], int) and not isinstance(entry[key], bool)):
+                    raise ValueError(f"{key}: expected an integer, got {entry[key]!r}")
+            if "fov_deg" in entry and not _is_number(entry["fov_deg"]):
+                raise ValueError(f"fov_deg: expected a number, got {entry['fov_deg']!r}")
+            cam = Camera.from_json(entry)
+            check_camera(cam)
+        except ValueError as e:
+            raise ValueError(f"{source}: entry {i}: {e}") from None
+        cams.append(cam)
+    return cams
+
+
+def _is_number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def save_cameras(path: str | Path, cameras: Sequence[Camera]) -> Path:
+    """Write cameras.json atomically."""
+    from ipm.io.atomic import write_text
+
+    return write_text(path, cameras_to_json(cameras))
+
+
+def load_cameras(path: str | Path) -> list[Camera]:
+    """Read and validate a cameras.json file (``ValueError`` with the file and entry on bad input)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"cameras file: expected an existing file, got {path}")
+    try:
+        data = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path}: expected JSON, got a parse error: {e}") from None
+    return cameras_from_json(data, str(path))

@@ -1,0 +1,396 @@
+"""Soft silhouettes of triangle meshes on the CPU (SoftRas), differentiable in vertices and camera.
+
+Formulation (Liu et al., "Soft Rasterizer", ICCV 2019): for pixel center ``p`` and projected triangle
+``j``, ``D_j(p) = sigmoid(s * d^2 / sigma)`` with ``d`` the screen-space distance (pixels) from ``p`` to
+the triangle's boundary and ``s = +1`` inside, ``-1`` outside; the silhouette is
+``1 - prod_j (1 - D_j(p))``. Triangles count whichever way they face (a silhouette needs both).
+
+How the cost follows covered pixels rather than pixels × triangles:
+
+1. vertices are projected; faces with a vertex nearer than ``near`` (behind the camera) are dropped
+   (no near-plane clipping: keep the camera outside the object);
+2. around each triangle only the pixels within the blur radius ``r = sqrt(sigma ln(1/eps))`` matter
+   (beyond it ``D < eps``): for every image row crossing the triangle's box, the *run* of pixels
+   within the x-extent of the triangle clipped to the band ``|y - y_row| <= r``, widened by ``r``
+   (tight for thin and slanted triangles; triangles fully outside the image have no runs);
+3. runs are cut into pieces of ``K`` pixels (``K`` chosen per call to minimize padding), so the work is
+   one dense ``(K, runs)`` evaluation whose per-run constants broadcast along ``K``: no Python loop
+   per triangle, and consecutive pixels along x make the screen distance an affine function of the
+   column (pieces running past the right image edge write to padding columns);
+4. per pair, ``log(1 - D) = -(log1p(exp(-d^2/sigma)) + [inside] d^2/sigma)``, which is
+   ``logsigmoid(-s d^2 / sigma)`` in a form that is finite for every ``d`` (the "clamp" of log(1 - D)
+   needs no constant), is accumulated per pixel with ``index_add_`` (the product is a sum of logs);
+5. pieces are processed in chunks of at most ``chunk`` pairs to bound memory.
+
+The backward pass is written by hand (a ``torch.autograd.Function``) from the envelope identity: with
+``w = p - a - t e`` the vector from the nearest point of the nearest edge ``a -> a + e`` (at parameter
+``t`` in [0, 1]), ``d(d^2) = -2 w . ((1 - t) da + t d(a + e))``.
+
+The pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
+``torch.compile`` (needs a C++ compiler; the first call compiles for tens of seconds, later calls and
+processes reuse the cache) which fuses them into single loops, several times faster than eager.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import torch
+
+from ipm.render.camera import project
+from ipm.types import Camera, TriMesh
+
+log = logging.getLogger(__name__)
+
+# Piece lengths: every run of pixels is cut into pieces of at most the largest size, and each piece is
+# padded to the smallest size that holds it; sizes with few pairs are merged into the next larger one.
+PIECE_SIZES = (4, 6, 8, 10, 12, 14, 16, 20, 24, 32, 48, 64)
+MERGE_BELOW = 0.03  # a size class with less than this share of the pairs joins the next larger class
+
+
+@dataclass(frozen=True)
+class PixelRows:
+    """Pieces of ``k`` consecutive pixels on one image row, each tied to one triangle.
+
+    tri: (R,) int64 index of the piece's triangle (into the kept triangles); j: (R,) int64 image row;
+    i: (R,) int64 first column (the piece covers columns i .. i + k - 1, possibly past the image's right
+    edge: callers pad their pixel buffers to ``width + k`` columns); n: (R,) int64 pixels of the piece
+    inside its run (<= k); k: pixels per piece.
+    """
+
+    tri: torch.Tensor
+    j: torch.Tensor
+    i: torch.Tensor
+    n: torch.Tensor
+    k: int
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.tri.shape[0])
+
+    @property
+    def n_pairs(self) -> int:
+        """Evaluated (pixel, triangle) pairs, padding included."""
+        return self.n_rows * self.k
+
+
+def span_rows(tri_xy: torch.Tensor, pad: float, width: int, height: int) -> tuple[list[PixelRows], torch.Tensor]:
+    """The pixel centers within ``pad`` pixels of each projected triangle, as runs along image rows.
+
+    For every image row that the triangle's box (expanded by ``pad``) crosses, the run spans the x-extent
+    of the triangle clipped to the band ``|y - y_row| <= pad``, widened by ``pad``: a superset of the
+    pixels within distance ``pad`` of the triangle. With ``pad = 0`` it is the triangle's span on that
+    row (for hard rasterization). Runs are cut into pieces grouped by padded length (PIECE_SIZES).
+
+    tri_xy: (F, 3, 2) float screen coordinates. Returns ``(groups, kept)``: one :class:`PixelRows` per
+    piece size, and ``kept`` (F,) bool marking the triangles with at least one piece (``tri`` in the
+    groups indexes the kept triangles).
+    """
+    with torch.no_grad():
+        t = tri_xy.detach()
+        dev, dt = t.device, t.dtype
+        big = float(max(width, height) + 2) + pad
+        # only guard non-finite values: clamping vertices would move edges that cross the image border
+        far = 1e3 * big
+        t = t.nan_to_num(far, far, -far).clamp(-far, far)
+        xs, ys = t[..., 0], t[..., 1]
+        j0 = torch.ceil(ys.amin(1) - pad - 0.5).long().clamp_min(0)
+        j1 = torch.floor(ys.amax(1) + pad - 0.5).long().clamp_max(height - 1)
+        inx = (xs.amax(1) + pad >= 0.5) & (xs.amin(1) - pad <= width - 0.5)
+        nlines = (j1 - j0 + 1).clamp_min(0) * inx
+        sel = torch.nonzero(nlines).squeeze(1)
+        # per edge (start p, end q): its y-range, and x as p + s (q - p) with s = (y - py) / dy (stable for
+        # nearly flat edges; flat edges take s = 0: their end point is the next edge's start, still seen)
+        p = t[sel]
+        q = p.roll(-1, dims=1)
+        dy = q[..., 1] - p[..., 1]
+        inv_dy = 1.0 / torch.where(dy == 0, torch.ones_like(dy), dy) * (dy != 0)
+        eymin = torch.minimum(p[..., 1], q[..., 1])
+        eymax = torch.maximum(p[..., 1], q[..., 1])
+        edge = torch.stack([eymin, eymax, p[..., 1], inv_dy, p[..., 0], q[..., 0] - p[..., 0]], -1)
+        nl = nlines[sel]
+        lsel = torch.repeat_interleave(torch.arange(sel.shape[0], device=dev), nl)
+        first = torch.cumsum(nl, 0) - nl
+        lj = (j0[sel] - first).index_select(0, lsel) + torch.arange(lsel.shape[0], device=dev)
+        yc = (lj.to(dt) + 0.5)[:, None]
+        eymin, eymax, py, inv_dy, px, dx = edge.index_select(0, lsel).unbind(-1)  # (L, 3) each
+        ylo = torch.maximum(eymin, yc - pad)
+        yhi = torch.minimum(eymax, yc + pad)
+        miss = (ylo > yhi).to(dt) * (4 * far)  # pushes a missed edge out of the min and the max
+        xa = torch.addcmul(px, ((ylo - py) * inv_dy).clamp_(0.0, 1.0), dx)
+        xb = torch.addcmul(px, ((yhi - py) * inv_dy).clamp_(0.0, 1.0), dx)
+        xmin = (torch.minimum(xa, xb) + miss).amin(1) - pad
+        xmax = (torch.maximum(xa, xb) - miss).amax(1) + pad
+        i0 = torch.ceil(xmin.clamp(-2.0, big) - 0.5).long().clamp_min(0)
+        i1 = torch.floor(xmax.clamp(-2.0, big) - 0.5).long().clamp_max(width - 1)
+        n = (i1 - i0 + 1).clamp_min(0)
+        kmax = PIECE_SIZES[-1]
+        per = (n + kmax - 1) // kmax
+        rline = torch.repeat_interleave(torch.arange(lsel.shape[0], device=dev), per)
+        rfirst = torch.cumsum(per, 0) - per
+        kept_sel = torch.zeros(sel.shape[0], dtype=torch.bool, device=dev)
+        kept_sel[lsel[n > 0]] = True
+        remap = torch.cumsum(kept_sel.long(), 0) - 1
+        # one gather for the per-line values each piece needs
+        line = torch.stack([remap.index_select(0, lsel), lj, i0 - rfirst * kmax, i1 + 1], 1).index_select(0, rline)
+        line[:, 2] += torch.arange(rline.shape[0], device=dev) * kmax  # first column of the piece
+        line[:, 3] = (line[:, 3] - line[:, 2]).clamp_max(kmax)  # its length
+        kept = torch.zeros(t.shape[0], dtype=torch.bool, device=dev)
+        kept[sel[kept_sel]] = True
+        cls = torch.bucketize(line[:, 3].contiguous(), torch.tensor(PIECE_SIZES, device=dev))  # smallest size that holds it
+        groups = []
+        for (c0, c1), k in _merged_classes(cls):
+            pick = torch.nonzero((cls >= c0) & (cls <= c1)).squeeze(1)
+            g = line.index_select(0, pick).T.contiguous()
+            groups.append(PixelRows(g[0], g[1], g[2], g[3], int(k)))
+    return groups, kept
+
+
+def _merged_classes(cls: torch.Tensor) -> list[tuple]:
+    """Size classes to evaluate: ``((lo, hi), k)`` merges classes lo..hi into padded size k, so that no
+    class holds less than MERGE_BELOW of the pairs (fewer, larger kernel calls)."""
+    counts = torch.bincount(cls, minlength=len(PIECE_SIZES)).tolist()
+    pairs = [c * k for c, k in zip(counts, PIECE_SIZES)]
+    total = sum(pairs)
+    out, lo, acc = [], None, 0
+    for c in range(len(PIECE_SIZES)):
+        if counts[c] == 0:
+            continue
+        lo = c if lo is None else lo
+        acc += pairs[c]
+        last = all(x == 0 for x in counts[c + 1:])
+        if acc >= MERGE_BELOW * total or last:
+            out.append(((lo, c), PIECE_SIZES[c]))
+            lo, acc = None, 0
+    return out
+
+
+def _edge_data(tri: torch.Tensor) -> torch.Tensor:
+    """Per-triangle constants (27, F): for edge e (from vertex e to e+1) with start a, vector v, unit
+    orientation o (edge functions >= 0 inside) and inv = 1/|v|^2, rows 9e .. 9e + 8 hold
+    ax, ay, o vx, o vy, -o vy, vx inv, vy inv, -vx, -vy."""
+    v = tri.roll(-1, dims=1) - tri
+    area2 = v[:, 0, 0] * v[:, 1, 1] - v[:, 0, 1] * v[:, 1, 0]
+    orient = torch.where(area2 < 0, -1.0, 1.0).to(tri.dtype)[:, None]
+    inv = 1.0 / (v * v).sum(-1).clamp_min(torch.finfo(tri.dtype).tiny ** 0.5)
+    rows = []
+    for e in range(3):
+        ax, ay = tri[:, e, 0], tri[:, e, 1]
+        vx, vy = v[:, e, 0], v[:, e, 1]
+        o = orient[:, 0]
+        rows += [ax, ay, o * vx, o * vy, -o * vy, vx * inv[:, e], vy * inv[:, e], -vx, -vy]
+    return torch.stack(rows)
+
+
+def _constants(data: torch.Tensor, tri: torch.Tensor, yc: torch.Tensor, xc: torch.Tensor) -> torch.Tensor:
+    """Per-piece constants (24, R) for pieces of triangles ``tri`` (R,) starting at pixel center (xc, yc):
+    with x = x0 + k along the piece, cross = c0 + c1 k, t = clamp(t0 + t1 k, 0, 1), w = (x0 + k - t vx,
+    dy - t vy), rows 8e .. 8e + 7 hold c0, c1, t0, t1, x0, dy, -vx, -vy of edge e."""
+    g = data.index_select(1, tri)  # (27, R)
+    out = torch.empty(24, tri.shape[0], dtype=data.dtype, device=data.device)
+    for e in range(3):
+        ax, ay, ox, oy, c1, t1, vyi, mvx, mvy = g[9 * e: 9 * e + 9]
+        x0 = torch.sub(xc, ax, out=out[8 * e + 4])
+        dy = torch.sub(yc, ay, out=out[8 * e + 5])
+        torch.mul(ox, dy, out=out[8 * e]).addcmul_(c1, x0)
+        torch.mul(x0, t1, out=out[8 * e + 2]).addcmul_(dy, vyi)
+        out[8 * e + 1] = c1
+        out[8 * e + 3] = t1
+        out[8 * e + 6] = mvx
+        out[8 * e + 7] = mvy
+    return out
+
+
+def _edge_eval(c: torch.Tensor, kcol: torch.Tensor):
+    """(d2, t, wx, wy) of one edge for all pairs of the chunk, (K, R) each; c: its 8 constants (8, R)."""
+    _, _, t0, t1, x0, dy, mvx, mvy = c
+    t = torch.addcmul(t0, kcol, t1).clamp_(0.0, 1.0)
+    wx = torch.addcmul(x0 + kcol, t, mvx)
+    wy = torch.addcmul(dy, t, mvy)
+    return torch.addcmul(wx * wx, wy, wy), t, wx, wy
+
+
+def _pick(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
+    """``b`` where the 0/1 mask ``m`` is 1, else ``a`` (arithmetic: cheaper than ``where`` in eager)."""
+    return torch.addcmul(a, m, b - a)
+
+
+def _forward_kernel(c, base, kcol, kidx, inv_sigma, need_grad: bool):
+    """Pairs of one chunk of pieces. c: (24, R) from :func:`_constants`; base: (R,) flat index of each
+    piece's first pixel; kcol, kidx: (K, 1) 0..K-1 as float and int64. Returns the flat pixel index (K, R), log(1 - D) (K, R) and, when
+    ``need_grad``, what the backward pass needs: u = exp(-d^2/sigma), inside (0/1), the nearest edge
+    (0/1/2), and its t, wx, wy, (K, R) each."""
+    c = c[:, None, :]  # (24, 1, R): rows broadcast over the K pixels of each piece
+    d0, t0, x0, y0 = _edge_eval(c[0:8], kcol)
+    d1, t1, x1, y1 = _edge_eval(c[8:16], kcol)
+    d2, t2, x2, y2 = _edge_eval(c[16:24], kcol)
+    cmin = torch.minimum(torch.minimum(torch.addcmul(c[0], kcol, c[1]), torch.addcmul(c[8], kcol, c[9])),
+                         torch.addcmul(c[16], kcol, c[17]))
+    dt = c.dtype
+    b01 = (d1 < d0).to(dt)
+    best = torch.minimum(d0, d1)
+    b2 = (d2 < best).to(dt)
+    best = torch.minimum(best, d2)
+    inside = (cmin >= 0).to(dt)
+    x = best * inv_sigma
+    u = torch.exp(-x.clamp(max=80.0))  # no denormals (slow on CPUs); exp(-80) is 0 for all purposes here
+    # log(1 + u) rather than log1p: faster, and off by at most u < 6e-8 (float32) where 1 + u rounds to 1
+    term = -torch.addcmul(torch.log(1.0 + u), inside, x)
+    pix = kidx + base[None]
+    if not need_grad:
+        return pix, term, ()
+    code = torch.addcmul(b01, b2, 2.0 - b01).add_(inside, alpha=3.0)  # nearest edge + 3 [inside]
+    t = _pick(_pick(t0, t1, b01), t2, b2)
+    wx = _pick(_pick(x0, x1, b01), x2, b2)
+    wy = _pick(_pick(y0, y1, b01), y2, b2)
+    return pix, term, (u, code, t, wx, wy)
+
+
+def _backward_kernel(gS: torch.Tensor, base: torch.Tensor, kidx: torch.Tensor, u: torch.Tensor,
+                     code: torch.Tensor, t: torch.Tensor, wx: torch.Tensor, wy: torch.Tensor,
+                     inv_sigma: torch.Tensor) -> torch.Tensor:
+    """Sums per piece (12, R): for edge e, rows 4e .. 4e + 3 hold sum g' w_x, sum g' w_y, sum g' t w_x,
+    sum g' t w_y over the pairs whose nearest edge is e, with g' = -2 dL/d(d^2); gS: dL/dS (pixels,)."""
+    g = torch.take(gS, kidx + base[None])
+    inside = (code >= 3.0).to(code.dtype)
+    idx = code - 3.0 * inside
+    gg = g * ((u / (1.0 + u) - inside) * (-2.0 * inv_sigma))  # -2 dL/d term * d term / d d^2
+    out = []
+    for e in range(3):
+        gm = gg * (idx == e).to(gg.dtype)
+        ux = gm * wx
+        uy = gm * wy
+        out += [ux.sum(0), uy.sum(0), (ux * t).sum(0), (uy * t).sum(0)]
+    return torch.stack(out)
+
+
+_KERNELS: dict[str, tuple[Callable, Callable]] = {"eager": (_forward_kernel, _backward_kernel)}
+
+
+def _kernels(backend: str) -> tuple[Callable, Callable]:
+    if backend not in ("eager", "compiled"):
+        raise ValueError(f"backend: expected 'eager' or 'compiled', got {backend!r}")
+    if backend not in _KERNELS:
+        _KERNELS[backend] = (torch.compile(_forward_kernel, dynamic=True),
+                             torch.compile(_backward_kernel, dynamic=True))
+    return _KERNELS[backend]
+
+
+class _SoftLogSum(torch.autograd.Function):
+    """S (H, W + K) = per pixel, the sum over nearby triangles of log(1 - D); differentiable in
+    tri_xy (F, 3, 2)."""
+
+    @staticmethod
+    def forward(ctx, tri_xy, groups, width, height, sigma, chunk, backend):
+        fwd, _ = _kernels(backend)
+        need_grad = bool(ctx.needs_input_grad[0])
+        data = _edge_data(tri_xy)
+        dev, dt = tri_xy.device, tri_xy.dtype
+        stride = width + max(g.k for g in groups)
+        S = torch.zeros(height * stride, dtype=dt, device=dev)
+        inv_sigma = torch.tensor(1.0 / sigma, dtype=dt, device=dev)
+        saved = []
+        for rows in groups:
+            kcol = torch.arange(rows.k, dtype=dt, device=dev)[:, None]
+            kidx = torch.arange(rows.k, device=dev)[:, None]
+            yc = rows.j.to(dt) + 0.5
+            xc = rows.i.to(dt) + 0.5
+            base = rows.j * stride + rows.i
+            step = max(1, chunk // rows.k)
+            for lo in range(0, rows.n_rows, step):
+                hi = min(rows.n_rows, lo + step)
+                c = _constants(data, rows.tri[lo:hi], yc[lo:hi], xc[lo:hi])
+                pix, term, keep = fwd(c, base[lo:hi], kcol, kidx, inv_sigma, need_grad)
+                S.index_add_(0, pix.view(-1), term.view(-1))
+                if need_grad:
+                    saved.append((rows.tri[lo:hi], base[lo:hi], kidx, keep))
+        ctx.saved = saved
+        ctx.n_tri, ctx.backend, ctx.inv_sigma = tri_xy.shape[0], backend, inv_sigma
+        return S.view(height, stride)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, gS):
+        _, bwd = _kernels(ctx.backend)
+        gS = gS.contiguous().view(-1)
+        grad = torch.zeros(ctx.n_tri, 3, 2, dtype=gS.dtype, device=gS.device)
+        for tri, base, kidx, keep in ctx.saved:
+            sums = bwd(gS, base, kidx, *keep, ctx.inv_sigma).view(3, 4, -1)  # per edge: sx, sy, tx, ty (R,)
+            sx, sy, tx, ty = sums.unbind(1)
+            start = torch.stack([sx - tx, sy - ty], -1)  # (3, R, 2): to each edge's start vertex
+            end = torch.stack([tx, ty], -1).roll(1, dims=0)  # edge e ends at vertex e + 1
+            grad.index_add_(0, tri, (start + end).transpose(0, 1))
+        return grad, None, None, None, None, None, None
+
+
+def blur_radius(sigma: float, eps: float) -> float:
+    """Distance (pixels) beyond which ``D = sigmoid(-d^2 / sigma) < eps``."""
+    return math.sqrt(sigma * math.log(1.0 / eps))
+
+
+def check_mesh_tensors(verts: torch.Tensor, faces: torch.Tensor) -> None:
+    """``ValueError`` unless verts is a float (V, 3) tensor and faces an integer (F, 3) tensor indexing it."""
+    if not torch.is_tensor(verts) or verts.ndim != 2 or verts.shape[-1] != 3 or not verts.is_floating_point():
+        raise ValueError(f"verts: expected a float tensor (V, 3), got "
+                         f"{tuple(verts.shape) if torch.is_tensor(verts) else type(verts).__name__}")
+    if not torch.is_tensor(faces) or faces.ndim != 2 or faces.shape[-1] != 3 or faces.is_floating_point():
+        raise ValueError(f"faces: expected an integer tensor (F, 3), got "
+                         f"{tuple(faces.shape) if torch.is_tensor(faces) else type(faces).__name__}")
+    if faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= verts.shape[0]):
+        raise ValueError(f"faces: expected vertex indices in [0, {verts.shape[0]}), got "
+                         f"[{int(faces.min())}, {int(faces.max())}]")
+
+
+def visible_triangles(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, near: float):
+    """Projected triangles in front of the camera.
+
+    Returns ``(tri_xy (F', 3, 2), tri_depth (F', 3), face_index (F',) int64)`` for the faces whose three
+    vertices are at depth >= ``near`` (dtype and device of ``verts``; differentiable).
+    """
+    xy, depth = project(verts, camera.to(dtype=verts.dtype, device=verts.device))
+    front = (depth[faces] >= near).all(1)
+    fidx = torch.nonzero(front).squeeze(1)
+    f = faces[fidx]
+    return xy[f], depth[f], fidx
+
+
+def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, sigma: float = 1.0, *,
+                    eps: float = 1e-6, near: float = 1e-3, chunk: int = 1 << 18,
+                    backend: str = "eager") -> torch.Tensor:
+    """Soft silhouette (H, W) in [0, 1] of a triangle mesh (SoftRas; see the module docstring).
+
+    verts: (V, 3) float32 or float64 (gradients flow to it and to the camera's tensors);
+    faces: (F, 3) int64; camera: the view (its tensors are cast to the dtype and device of ``verts``);
+    sigma: blur in squared pixels (at distance ``sqrt(sigma)`` px outside a triangle, D = sigmoid(-1));
+    eps: pairs with ``D < eps`` are skipped (the dense formula differs by about eps per pixel at most);
+    near: faces with a vertex nearer than this (world units along the view axis) are dropped;
+    chunk: pairs evaluated at once (bounds memory); backend: "eager" or "compiled" (torch.compile).
+    Returns a tensor with the dtype and device of ``verts``.
+    """
+    check_mesh_tensors(verts, faces)
+    if not sigma > 0:
+        raise ValueError(f"sigma: expected a positive blur (squared pixels), got {sigma}")
+    if not 0 < eps < 0.5:
+        raise ValueError(f"eps: expected a cutoff in (0, 0.5), got {eps}")
+    W, H = int(camera.width), int(camera.height)
+    tri, _, _ = visible_triangles(verts, faces, camera, near)
+    groups, kept = span_rows(tri, blur_radius(sigma, eps), W, H)
+    if not groups:
+        return verts.sum() * 0 + torch.zeros(H, W, dtype=verts.dtype, device=verts.device)
+    S = _SoftLogSum.apply(tri[kept], groups, W, H, float(sigma), int(chunk), backend)
+    return -torch.expm1(S[:, :W])
+
+
+def soft_silhouettes(mesh: TriMesh | tuple[torch.Tensor, torch.Tensor], cameras: Sequence[Camera],
+                     sigma: float = 1.0, **kw) -> torch.Tensor:
+    """Soft silhouettes (N, H, W) of one mesh in N views of one size (see :func:`soft_silhouette`)."""
+    verts, faces = (mesh.verts, mesh.faces) if isinstance(mesh, TriMesh) else mesh
+    if not cameras:
+        raise ValueError("cameras: expected at least one camera, got none")
+    sizes = {(c.width, c.height) for c in cameras}
+    if len(sizes) != 1:
+        raise ValueError(f"cameras: expected one image size, got {sorted(sizes)}")
+    return torch.stack([soft_silhouette(verts, faces, c, sigma, **kw) for c in cameras])
