@@ -1,0 +1,416 @@
+"""Dishes: a revolved, thick-walled vessel (mug, cup, glass, bowl, plate, vase, bottle, pitcher)
+with an optional handle, differentiable in all continuous parameters.
+
+Geometry (Y up, the base at y = 0, revolved about Y):
+
+* **Outer wall.** ``radius_0 .. radius_{k-1}`` at evenly spaced heights from the base to the top of
+  the wall are joined by a uniform Catmull-Rom spline (it passes through every control radius).
+* **Inner wall.** At every height ``y`` above the bottom, the inner radius is the outer one minus
+  ``wall_thickness`` measured across the wall (the horizontal offset is ``t * sqrt(1 + (dR/dy)^2)``),
+  clamped to at least a tenth of the outer radius. Both walls are functions of ``y`` and the inner
+  one is strictly inside, so the profile is a simple closed loop for *every* parameter vector.
+* **Rim.** Half an ellipse joins the walls' tops; its height is ``rim_round`` times half the rim
+  width (0: flat). The top of the rim is at exactly ``height``.
+* **Bottom.** ``bottom_thickness`` (at most half the wall height); ``bottom_dome`` raises the outer
+  bottom's center (a foot ring), as a fraction of 0.8 times the bottom thickness.
+* **Spout.** A radial bulge ``spout`` of the top ``spout_length`` (fraction of the height) opposite
+  the handle (towards -X), ``spout_width`` wide (radians, Gaussian in the angle).
+* **Handle** (``has_handle``). A closed tube with elliptic sections swept along a Catmull-Rom curve
+  in the vertical plane at ``handle_azimuth`` (degrees from +X towards -Z). Its ends sit inside the
+  wall at heights ``handle_top`` and ``handle_bottom`` (fractions of ``height``), ``handle_embed``
+  of the way from the outer to the inner wall, and meet it horizontally. Five inner control points
+  stand out by ``handle_out_i * handle_reach`` and are lifted by ``handle_lift_i`` times the
+  attachment span. Section semi-axes: ``handle_thickness`` (in the handle's plane) and
+  ``handle_width`` (across it), scaled linearly by ``1 -/+ handle_taper`` from top to bottom, plus
+  per-section offsets ``handle_thicken_i`` / ``handle_widen_i`` (seven sections, splined).
+
+The body and the handle are separate closed components of one :class:`~ipm.types.TriMesh`
+(groups ``body`` and ``handle``). Vertex and face counts depend on ``has_handle`` and the level of
+detail (:class:`DishLod`) only.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+
+import numpy as np
+import torch
+
+from ipm.generators import _meshkit as mk
+from ipm.generators._meshkit import lift, sadd, smul, ssub
+from ipm.generators.base import Generator, register_generator
+from ipm.params import Param, ParamSpec, Value
+from ipm.types import TriMesh
+
+N_RADII = 9
+N_HANDLE = 7                      # handle control points (two on the wall, five free)
+INNER_MIN = 0.1                   # inner radius >= INNER_MIN * outer radius
+RADIUS_MIN = 0.01                 # the outer spline is clamped to at least this radius
+SECTION_MIN = 1e-3                # smallest handle semi-axis
+
+
+@dataclass(frozen=True)
+class DishLod:
+    """Level of detail of :class:`DishesGenerator` meshes (counts only; parameters do not change).
+
+    radial: segments around Y; wall: samples along each wall (outer and inner, from bottom to top);
+    rim: interior samples of the rim arc (odd, so that the top of the rim is a vertex);
+    bottom: rings across each bottom disc (1: a single fan from the axis to the wall);
+    handle_sections: sections along the handle; handle_ring: vertices per handle section.
+    """
+
+    radial: int = 48
+    wall: int = 25
+    rim: int = 5
+    bottom: int = 3
+    handle_sections: int = 32
+    handle_ring: int = 12
+
+    def __post_init__(self) -> None:
+        mins = {"radial": 3, "wall": 2, "rim": 1, "bottom": 1, "handle_sections": 3, "handle_ring": 3}
+        for f in fields(self):
+            v = getattr(self, f.name)
+            if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < mins[f.name]:
+                raise ValueError(f"lod {f.name}: expected an integer >= {mins[f.name]}, got {v!r}")
+        if self.rim % 2 == 0:
+            raise ValueError(f"lod rim: expected an odd number of rim samples, got {self.rim}")
+
+
+LODS: dict[str, DishLod] = {
+    "low": DishLod(radial=24, wall=17, rim=3, bottom=2, handle_sections=16, handle_ring=8),
+    "medium": DishLod(),
+    "high": DishLod(radial=96, wall=41, rim=7, bottom=6, handle_sections=64, handle_ring=16),
+}
+
+
+def resolve_lod(lod: DishLod | Mapping | str | None) -> DishLod:
+    """A :class:`DishLod` from None (medium), a name (low, medium, high), a dict of fields or a DishLod."""
+    if lod is None:
+        return LODS["medium"]
+    if isinstance(lod, DishLod):
+        return lod
+    if isinstance(lod, str):
+        if lod not in LODS:
+            raise ValueError(f"lod: expected one of {', '.join(LODS)}, got {lod!r}")
+        return LODS[lod]
+    if isinstance(lod, Mapping):
+        names = {f.name for f in fields(DishLod)}
+        bad = sorted(set(lod) - names)
+        if bad:
+            raise ValueError(f"lod: unknown field(s) {', '.join(bad)}; expected some of {', '.join(sorted(names))}")
+        return DishLod(**dict(lod))
+    raise ValueError(f"lod: expected None, a name, a dict or a DishLod, got {type(lod).__name__}")
+
+
+def lod_from_resolution(resolution: int) -> DishLod:
+    """A level of detail with about ``resolution`` segments around the axis."""
+    r = max(8, int(resolution))
+    wall = 8 * max(2, r // 16) + 1
+    return DishLod(radial=r, wall=wall, rim=2 * max(1, r // 24) + 1, bottom=max(2, r // 16),
+                   handle_sections=max(8, 2 * r // 3), handle_ring=max(6, r // 6))
+
+
+# ----------------------------------------------------------------------------------------------
+# Parameters
+# ----------------------------------------------------------------------------------------------
+
+def _f(name, default, lo, hi, doc=""):
+    return Param(name, default, lo, hi, "float", doc)
+
+
+_OUT = (0.55, 0.9, 1.0, 0.9, 0.55)
+_LIFT = (0.15, 0.08, 0.0, -0.08, -0.15)
+
+
+def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
+    """The parameters of a dish with ``n_radii`` profile radii (49 continuous + ``has_handle`` for 9)."""
+    if n_radii < 3:
+        raise ValueError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
+    ps = [_f("height", 1.0, 0.02, 4.0, "total height, base to the top of the rim")]
+    ps += [_f(f"radius_{i}", 0.4, 0.02, 2.0, f"outer radius at height {i}/{n_radii - 1} of the wall")
+           for i in range(n_radii)]
+    ps += [
+        _f("wall_thickness", 0.035, 0.002, 0.25, "wall thickness, measured across the wall"),
+        _f("bottom_thickness", 0.05, 0.002, 0.4, "bottom thickness (at most half the wall height)"),
+        _f("rim_round", 1.0, 0.0, 1.0, "rim height over half its width: 0 flat, 1 half round"),
+        _f("bottom_dome", 0.0, 0.0, 1.0, "rise of the outer bottom's center (foot ring), fraction"),
+        _f("spout", 0.0, 0.0, 0.5, "radial bulge of the lip opposite the handle"),
+        _f("spout_width", 0.35, 0.1, 1.5, "angular width of the spout (radians)"),
+        _f("spout_length", 0.2, 0.05, 0.6, "how far down the spout reaches (fraction of height)"),
+        _f("handle_top", 0.8, 0.5, 0.97, "upper attachment height (fraction of height)"),
+        _f("handle_bottom", 0.25, 0.03, 0.45, "lower attachment height (fraction of height)"),
+        _f("handle_reach", 0.3, 0.02, 1.5, "how far the handle stands out from the wall"),
+        _f("handle_embed", 0.5, 0.0, 1.0, "handle ends' depth into the wall (fraction of its thickness)"),
+        _f("handle_azimuth", 0.0, -180.0, 180.0, "direction of the handle (degrees from +X)"),
+    ]
+    ps += [_f(f"handle_out_{i + 1}", _OUT[i], 0.0, 1.5, f"outward offset of handle point {i + 1} (x reach)")
+           for i in range(5)]
+    ps += [_f(f"handle_lift_{i + 1}", _LIFT[i], -0.5, 0.5, f"lift of handle point {i + 1} (x span)")
+           for i in range(5)]
+    ps += [
+        _f("handle_width", 0.06, 0.005, 0.4, "handle section half-width across its plane"),
+        _f("handle_thickness", 0.03, 0.003, 0.3, "handle section half-thickness in its plane"),
+        _f("handle_taper", 0.0, -0.6, 0.6, "section scale 1 - taper at the top, 1 + taper at the bottom"),
+    ]
+    ps += [_f(f"handle_widen_{i}", 0.0, -0.2, 0.2, f"half-width offset at handle section {i}")
+           for i in range(N_HANDLE)]
+    ps += [_f(f"handle_thicken_{i}", 0.0, -0.1, 0.1, f"half-thickness offset at handle section {i}")
+           for i in range(N_HANDLE)]
+    ps.append(Param("has_handle", 0, 0, 1, "bool", "1: add a handle"))
+    return ParamSpec(tuple(ps))
+
+
+def _radii(values) -> dict:
+    return {f"radius_{i}": float(v) for i, v in enumerate(values)}
+
+
+PRESETS: dict[str, dict[str, Value]] = {
+    "mug": {"height": 1.0, **_radii([0.38, 0.385, 0.39, 0.395, 0.4, 0.405, 0.41, 0.415, 0.42]),
+            "wall_thickness": 0.04, "bottom_thickness": 0.06, "rim_round": 1.0, "bottom_dome": 0.3,
+            "has_handle": 1, "handle_top": 0.8, "handle_bottom": 0.25, "handle_reach": 0.3,
+            "handle_width": 0.07, "handle_thickness": 0.035},
+    "teacup": {"height": 0.6, **_radii([0.2, 0.27, 0.33, 0.38, 0.42, 0.45, 0.48, 0.5, 0.52]),
+               "wall_thickness": 0.02, "bottom_thickness": 0.03, "rim_round": 1.0, "bottom_dome": 0.5,
+               "has_handle": 1, "handle_top": 0.85, "handle_bottom": 0.3, "handle_reach": 0.2,
+               "handle_width": 0.04, "handle_thickness": 0.018, "handle_taper": 0.2},
+    "glass": {"height": 1.2, **_radii([0.3 + 0.06 * i / 8 for i in range(9)]),
+              "wall_thickness": 0.02, "bottom_thickness": 0.12, "rim_round": 1.0, "has_handle": 0},
+    "bowl": {"height": 0.5, **_radii([0.3, 0.5, 0.62, 0.7, 0.76, 0.8, 0.83, 0.86, 0.88]),
+             "wall_thickness": 0.03, "bottom_thickness": 0.04, "bottom_dome": 0.6, "has_handle": 0},
+    "plate": {"height": 0.1, **_radii([0.45, 0.7, 0.82, 0.88, 0.92, 0.95, 0.97, 0.99, 1.0]),
+              "wall_thickness": 0.015, "bottom_thickness": 0.02, "rim_round": 0.5, "has_handle": 0},
+    "vase": {"height": 1.6, **_radii([0.3, 0.42, 0.5, 0.48, 0.38, 0.25, 0.2, 0.22, 0.3]),
+             "wall_thickness": 0.025, "bottom_thickness": 0.08, "has_handle": 0},
+    "bottle": {"height": 1.8, **_radii([0.35, 0.36, 0.36, 0.36, 0.35, 0.28, 0.14, 0.1, 0.1]),
+               "wall_thickness": 0.02, "bottom_thickness": 0.05, "bottom_dome": 0.5, "has_handle": 0},
+    "pitcher": {"height": 1.4, **_radii([0.38, 0.42, 0.45, 0.46, 0.44, 0.4, 0.36, 0.36, 0.38]),
+                "wall_thickness": 0.03, "bottom_thickness": 0.05, "spout": 0.15, "spout_width": 0.4,
+                "spout_length": 0.25, "has_handle": 1, "handle_top": 0.85, "handle_bottom": 0.3,
+                "handle_reach": 0.35, "handle_width": 0.08, "handle_thickness": 0.035,
+                "handle_taper": 0.15},
+}
+
+
+def _resample_presets(n_radii: int) -> dict[str, dict[str, Value]]:
+    if n_radii == N_RADII:
+        return PRESETS
+    out = {}
+    for name, p in PRESETS.items():
+        r = np.array([p.get(f"radius_{i}", 0.4) for i in range(N_RADII)])
+        rr = np.interp(np.linspace(0, 1, n_radii), np.linspace(0, 1, N_RADII), r)
+        q = {k: v for k, v in p.items() if not k.startswith("radius_")}
+        out[name] = {**q, **_radii(rr)}
+    return out
+
+
+# ----------------------------------------------------------------------------------------------
+# The generator
+# ----------------------------------------------------------------------------------------------
+
+class DishesGenerator(Generator):
+    """Revolved vessels with an optional handle (see the module docstring)."""
+
+    name = "dishes"
+    kind = "mesh"
+    description = "revolved vessel (spline profile, wall thickness, rim, spout) with an optional handle"
+
+    def __init__(self, n_radii: int = N_RADII):
+        self.k = int(n_radii)
+        self.spec = dish_spec(self.k)
+        self.presets = _resample_presets(self.k)
+        self._names = [p.name for p in self.spec.continuous]
+        idx = {n: i for i, n in enumerate(self._names)}
+
+        def run(first: str, count: int) -> slice:
+            return slice(idx[first], idx[first] + count)
+
+        # parameters used as vectors are contiguous in theta: one slice instead of a cat of scalars
+        self._slices = {"radii": run("radius_0", self.k), "attach": run("handle_top", 2),
+                        "out": run("handle_out_1", 5), "lift": run("handle_lift_1", 5),
+                        "sections": run("handle_widen_0", 2 * N_HANDLE)}
+
+    # -- geometry ------------------------------------------------------------------------------
+    def mesh(self, theta: torch.Tensor, discrete: Mapping[str, int], lod=None) -> TriMesh:
+        """The dish for ``theta: (n,) float`` (vertices differentiable in it) and ``has_handle``.
+
+        Returns a TriMesh with groups ``body`` (and ``handle``); dtype and device follow ``theta``.
+        """
+        n = len(self._names)
+        if theta.ndim != 1 or theta.shape[0] != n:
+            raise ValueError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
+        has_handle = int(discrete.get("has_handle", self.spec["has_handle"].default))
+        if has_handle not in (0, 1):
+            raise ValueError(f"has_handle: expected 0 or 1, got {has_handle}")
+        L = resolve_lod(lod)
+        p = dict(zip(self._names, theta.split(1)))
+        v = {key: theta[sl] for key, sl in self._slices.items()}
+        v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
+        prof = _profile(p, v["radii"], L)
+        c, _ = mk.angles(L.radial, theta.dtype, theta.device)
+        bulge = (p["spout"] * _spout_height(p, prof.y), _spout_angle(p, lift(c, theta)))
+        verts = mk.revolve_parts(prof.r, prof.y, L.radial, bottom=prof.y_bottom, top=prof.y_top, bulge=bulge)
+        n_prof = prof.r.shape[0]
+        faces = [mk.loft_faces(n_prof, L.radial, "pole", "pole")]
+        counts, names = [n_prof * L.radial + 2], ["body"]
+        if has_handle:
+            verts.append(_handle(p, v, prof, L))
+            faces.append(mk.loft_faces(L.handle_sections, L.handle_ring, "pole", "pole"))
+            counts.append(L.handle_sections * L.handle_ring + 2)
+            names.append("handle")
+        return mk.assemble(verts, faces, counts, names)
+
+    def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
+        """The mesh of a (validated) value dict; ``lod`` wins over ``resolution`` (segments around Y)."""
+        full = self.spec.validate(values)
+        if lod is None and resolution is not None:
+            lod = lod_from_resolution(resolution)
+        theta, discrete = self.split(full)
+        return self.mesh(theta, discrete, lod).detach()
+
+    def counts(self, discrete: Mapping[str, int], lod=None) -> tuple[int, int]:
+        """(vertices, faces) for these discrete values and level of detail, without building."""
+        L = resolve_lod(lod)
+        n_prof = 2 * (L.bottom - 1) + 2 * L.wall + L.rim
+        v = n_prof * L.radial + 2
+        f = 2 * L.radial * (n_prof - 1) + 2 * L.radial
+        if int(discrete.get("has_handle", 0)):
+            v += L.handle_sections * L.handle_ring + 2
+            f += 2 * L.handle_ring * (L.handle_sections - 1) + 2 * L.handle_ring
+        return v, f
+
+
+@dataclass(frozen=True)
+class _Profile:
+    r: torch.Tensor            # (P,) radii: outer bottom, outer wall, rim, inner wall, inner bottom
+    y: torch.Tensor            # (P,) heights
+    y_bottom: torch.Tensor     # (1,) outer bottom center (pole)
+    y_top: torch.Tensor        # (1,) inner bottom center (pole)
+    wall_top: torch.Tensor     # (1,) height where the walls meet the rim
+    bottom: torch.Tensor       # (1,) inner bottom height
+    outer: torch.Tensor        # (wall,) outer wall radii at heights evenly spaced in [0, wall_top]
+    inner: torch.Tensor        # (wall,) inner wall radii at heights evenly spaced in [bottom, wall_top]
+
+
+def _inner(p, R, dR, H):
+    """Inner radius for outer radius ``R`` and spline slope ``dR`` (d R / d u, u = y / wall top)."""
+    slope = dR / H
+    r = R - p["wall_thickness"] * torch.sqrt(sadd(slope * slope, 1.0))
+    return torch.maximum(r, smul(R, INNER_MIN))
+
+
+def _profile(p, radii: torch.Tensor, L: DishLod) -> _Profile:
+    """The closed profile loop (without the two axis poles) from the named parameters ``p`` ((1,) each)
+    and the control radii ``(k,)``."""
+    k = radii.shape[0]
+    dt, dev = radii.dtype, radii.device
+    H = p["height"]
+    # rim width from the top of the wall (u = 1): R(1) = radius_{k-1}, R'(1) = (k-1)(P_{k-1} - P_{k-2})
+    R1 = radii[-1:]
+    in1 = _inner(p, R1, smul(radii[-1:] - radii[-2:-1], float(k - 1)), H)
+    half = smul(R1 - in1, 0.5)
+    c = torch.minimum(p["rim_round"] * half, smul(H, 0.25))                 # rim height
+    Hw = H - c                                                               # top of the walls
+    b = torch.minimum(p["bottom_thickness"], smul(Hw, 0.5))
+    dome = p["bottom_dome"] * smul(b, 0.8)
+
+    # outer wall: fixed spline samples, one matmul
+    u = lift(torch.linspace(0.0, 1.0, L.wall, dtype=dt, device=dev), radii)
+    R_out = torch.clamp(mk.catmull_rom_matrix(k, L.wall, dt, dev) @ radii, min=RADIUS_MIN)
+    y_out = Hw * u
+    # inner wall, from the top down to the bottom, at heights that depend on the parameters
+    v = torch.flip(u, (0,))
+    y_in = b + (Hw - b) * v
+    R_at, dR_at = mk.catmull_rom(radii, y_in / Hw, derivative=True)
+    r_in = _inner(p, torch.clamp(R_at, min=RADIUS_MIN), dR_at, H)
+    # rim: interior samples of half an ellipse from the outer to the inner wall top
+    th = torch.arange(1, L.rim + 1, dtype=torch.float64, device=dev) * (math.pi / (L.rim + 1))
+    ct, st = lift(torch.cos(th), radii), lift(torch.sin(th), radii)
+    a = smul(R_out[-1:] - r_in[:1], 0.5)
+    r_rim = (R_out[-1:] - a) + a * ct
+    y_rim = Hw + c * st
+    # bottoms: rings between the axis and the walls
+    j = torch.arange(1, L.bottom, dtype=torch.float64, device=dev) / L.bottom      # (bottom - 1,)
+    jl, jq = lift(j, radii), lift(1.0 - j * j, radii)
+    jr = torch.flip(jl, (0,))
+    r = torch.cat([R_out[:1] * jl, R_out, r_rim, r_in, r_in[-1:] * jr])
+    y = torch.cat([dome * jq, y_out, y_rim, y_in, b.expand(L.bottom - 1)])
+    return _Profile(r, y, dome, b, Hw, b, R_out, torch.flip(r_in, (0,)))
+
+
+def _lerp_samples(values: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
+    """Piecewise-linear interpolation of evenly spaced ``values: (m,)`` at positions ``s`` in [0, m-1]."""
+    m = values.shape[0]
+    j = torch.clamp(torch.floor(s.detach()), 0, m - 2).long()
+    f = s - lift(j, s)
+    return values[j] + (values[j + 1] - values[j]) * f
+
+
+def _spout_angle(p, cos_phi: torch.Tensor) -> torch.Tensor:
+    """Angular weight of the spout (1 at -X, Gaussian in the angle) for dual ``cos(phi)``."""
+    w = p["spout_width"]
+    return torch.exp(-sadd(cos_phi, 1.0) / (w * w))
+
+
+def _spout_height(p, y: torch.Tensor) -> torch.Tensor:
+    """Height weight of the spout: 0 below the spout, rising quadratically to 1 at the top."""
+    Ls = p["spout_length"]
+    s = torch.clamp((y / p["height"] - ssub(1.0, Ls)) / Ls, 0.0, 1.0)
+    return s * s
+
+
+def _handle(p, v, prof: _Profile, L: DishLod) -> torch.Tensor:
+    """Handle vertices ``(sections * ring + 2, 3)`` (loft layout with poles)."""
+    radii = v["radii"]
+    dt, dev = radii.dtype, radii.device
+    H, Hw = p["height"], prof.wall_top
+    alpha = smul(p["handle_azimuth"], math.pi / 180.0)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    # attachment points inside the wall *as meshed*: the walls' sampled profiles interpolated
+    # linearly (as the faces do) and the outer radius scaled by cos(pi / radial) (the polygon's
+    # inscribed circle), `embed` of the way from the outer to the inner surface
+    b, m = prof.bottom, prof.outer.shape[0]
+    y_att = torch.minimum(torch.maximum(v["attach"] * H, b), Hw)                     # (2,) top, bottom
+    R_att = _lerp_samples(prof.outer, smul(y_att / Hw, float(m - 1)))
+    r_in = _lerp_samples(prof.inner, smul((y_att - b) / (Hw - b), float(m - 1)))
+    bulge = p["spout"] * _spout_height(p, y_att) * _spout_angle(p, ca)
+    outer = smul(R_att + bulge, math.cos(math.pi / L.radial))
+    rho_att = outer - p["handle_embed"] * (outer - (r_in + bulge))                   # (2,)
+    # control points in the handle's plane: (rho, y)
+    s = lift(torch.arange(1, N_HANDLE - 1, dtype=torch.float64, device=dev) / (N_HANDLE - 1), radii)
+    top, bot = rho_att[:1], rho_att[1:]
+    rho_mid = top + (bot - top) * s + p["handle_reach"] * v["out"]
+    y_mid = y_att[:1] + (y_att[1:] - y_att[:1]) * s + v["lift"] * (y_att[:1] - y_att[1:])
+    ctrl = torch.stack([torch.cat([top, rho_mid, bot]),
+                        torch.cat([y_att[:1], y_mid, y_att[1:]])], -1)                 # (7, 2)
+    # phantom points so that the curve meets the wall horizontally at both ends
+    d = ctrl[[1, -1]] - ctrl[[0, -2]]                                                # (2, 2)
+    dlen = torch.sqrt(sadd((d * d).sum(-1, keepdim=True), 1e-20))                   # (2, 1)
+    step = smul(torch.cat([dlen, torch.zeros_like(dlen)], -1), 2.0)                  # (2, 2)
+    pad = torch.cat([ctrl[1:2] - step[:1], ctrl, ctrl[-2:-1] - step[1:]])             # (9, 2)
+    m = L.handle_sections
+    centers = mk.catmull_rom_pad_matrix(N_HANDLE, m, False, dt, dev) @ pad           # (m, 2)
+    tang = mk.catmull_rom_pad_matrix(N_HANDLE, m, True, dt, dev) @ pad
+    tang = tang / torch.sqrt(sadd((tang * tang).sum(-1, keepdim=True), 1e-20))
+    # section semi-axes: linear taper plus splined per-section offsets
+    u = torch.linspace(-1.0, 1.0, m, dtype=dt, device=dev)
+    taper = sadd(p["handle_taper"] * lift(u, radii), 1.0)
+    offs = mk.catmull_rom_matrix(N_HANDLE, m, dt, dev) @ v["sections"]               # (m, 2)
+    bw = torch.clamp(p["handle_width"] * taper + offs[:, 0], min=SECTION_MIN)
+    a = torch.clamp(p["handle_thickness"] * taper + offs[:, 1], min=SECTION_MIN)
+    c, sn = mk.angles(L.handle_ring, dt, dev)
+    c, sn = lift(c, radii), lift(sn, radii)
+    ac = a[:, None] * c                                                              # (m, Q)
+    R_loc = centers[:, :1] + ac * (-tang[:, 1:])                                     # in-plane normal
+    Y_loc = centers[:, 1:] + ac * tang[:, :1]
+    B_loc = bw[:, None] * sn
+    ring = torch.stack([R_loc * ca + B_loc * sa, Y_loc, B_loc * ca - R_loc * sa], -1).reshape(-1, 3)
+    ends = centers[[0, -1]]                                                          # (2, 2)
+    poles = torch.stack([ends[:, 0] * ca, ends[:, 1], -(ends[:, 0] * sa)], -1)
+    return torch.cat([poles[:1], ring, poles[1:]])
+
+
+@register_generator("dishes")
+def _dishes() -> DishesGenerator:
+    return DishesGenerator()
