@@ -24,11 +24,13 @@ constant tensors into duals once with :func:`lift` before using them. Plain eval
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from functools import lru_cache
 from typing import Literal
 
 import numpy as np
 import torch
+import torch.autograd.forward_ad as fwAD
 
 from ipm.types import TriMesh
 
@@ -61,11 +63,78 @@ def ssub(s: float, x: torch.Tensor) -> torch.Tensor:
     return _aten.rsub.Scalar(x, s)
 
 
+# private torch hooks; without them every constant is lifted (correct, a little slower)
+_IS_WRAPPED = getattr(getattr(torch._C, "_functorch", None), "is_functorch_wrapped_tensor", None)
+
+
+def _traced(like: torch.Tensor) -> bool:
+    """True inside torch.func transforms or a torch.autograd.forward_ad dual level."""
+    if _IS_WRAPPED is None:
+        return True
+    return _IS_WRAPPED(like) or getattr(fwAD, "_current_level", 0) >= 0
+
+
 def lift(c: torch.Tensor, like: torch.Tensor) -> torch.Tensor:
-    """The constant ``c`` (any shape) in ``like``'s dtype, as a dual of ``like``'s AD level with a zero
-    tangent (a plain copy outside ``jvp``), so that later ops with duals take the fast path."""
-    c = c.to(dtype=like.dtype, device=like.device)
+    """The constant ``c`` (any shape) in ``like``'s dtype and device; inside torch.func transforms
+    (or a forward-AD level) also a dual of ``like``'s level with a zero tangent, so that later ops
+    with duals take the fast path. Outside them ``c`` itself may be returned: do not modify in place."""
+    if c.dtype != like.dtype or c.device != like.device:
+        c = c.to(dtype=like.dtype, device=like.device)
+    if not _traced(like):
+        return c
     return torch.cat([like.reshape(-1)[:0], c.reshape(-1)]).reshape(c.shape)
+
+
+_NP_DTYPES = {torch.float32: np.float32, torch.float64: np.float64}
+
+
+@lru_cache(maxsize=1024)
+def _np_const(builder, args: tuple, dtype) -> np.ndarray:
+    return np.ascontiguousarray(builder(*args), dtype=dtype)
+
+
+def const(builder, *args, like: torch.Tensor) -> torch.Tensor:
+    """A constant array ``builder(*args)`` (built once per dtype with NumPy and cached) as a tensor in
+    ``like``'s dtype and device, lifted to its AD level (see :func:`lift`). ``builder`` must be a
+    module-level function (it is part of the cache key). Do not modify the result in place."""
+    t = torch.from_numpy(_np_const(builder, args, _NP_DTYPES.get(like.dtype, np.float64)))
+    return lift(t, like)
+
+
+def _plain(builder, args: tuple, dtype, device) -> torch.Tensor:
+    """A cached constant as a plain tensor (not lifted): for matmuls, which take the fast path."""
+    t = torch.from_numpy(_np_const(builder, args, _NP_DTYPES.get(dtype, np.float64)))
+    return t if t.dtype == dtype and t.device == torch.device(device or "cpu") else t.to(dtype=dtype, device=device)
+
+
+def _cr_basis() -> np.ndarray:
+    return _CR
+
+
+def half_steps(n: int, scale: float = 1.0) -> np.ndarray:
+    """``(i + 0.5) * scale`` for i < n."""
+    return (np.arange(n) + 0.5) * scale
+
+
+def steps(start: int, stop: int, scale: float = 1.0) -> np.ndarray:
+    """``i * scale`` for start <= i < stop."""
+    return np.arange(start, stop) * scale
+
+
+def circle(segments: int) -> np.ndarray:
+    """``(2, segments)``: cos and sin of ``segments`` evenly spaced angles from 0."""
+    a = np.arange(segments) * (2.0 * math.pi / segments)
+    return np.stack([np.cos(a), np.sin(a)])
+
+
+def ring_dirs(segments: int) -> np.ndarray:
+    """``(segments, 3)``: the unit directions ``(cos, 0, -sin)`` of a ring about +Y (counter-clockwise)."""
+    c, s = circle(segments)
+    return np.stack([c, np.zeros_like(c), -s], -1)
+
+
+def unit(axis: int, n: int = 3) -> np.ndarray:
+    return np.eye(n)[axis]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -117,6 +186,12 @@ def _loft_faces_np(n_loops: int, k: int, start: Cap, end: Cap) -> np.ndarray:
     return out
 
 
+def loft_faces_np(n_loops: int, k: int, start: Cap = "pole", end: Cap = "pole") -> np.ndarray:
+    """:func:`loft_faces` as a (cached, shared) NumPy array: safe to call inside torch.func transforms,
+    where tensors made from NumPy cannot be turned back into arrays."""
+    return _loft_faces_np(n_loops, k, start, end)
+
+
 def loft_n_verts(n_loops: int, k: int, start: Cap = "pole", end: Cap = "pole") -> int:
     """Number of vertices of :func:`loft_faces`' layout."""
     return n_loops * k + (start == "pole") + (end == "pole")
@@ -132,7 +207,10 @@ def repeat_faces(template: tuple[tuple[int, int, int], ...] | None, n_verts: int
 
 @lru_cache(maxsize=256)
 def _repeat_faces_np(template, n_verts, count, n_loops, k, start, end) -> np.ndarray:
-    base = np.asarray(template, dtype=np.int64) if template is not None else _loft_faces_np(n_loops, k, start, end)
+    if template is not None:
+        base = np.asarray(template, dtype=np.int64)
+    else:
+        base = _loft_faces_np(n_loops, k, start, end)
     offs = (np.arange(count, dtype=np.int64) * n_verts)[:, None, None]
     out = (base[None] + offs).reshape(-1, 3)
     return out
@@ -142,10 +220,11 @@ def _repeat_faces_np(template, n_verts, count, n_loops, k, start, end) -> np.nda
 # Vertices (torch, differentiable)
 # ----------------------------------------------------------------------------------------------
 
-def angles(segments: int, dtype=torch.float64, device=None) -> tuple[torch.Tensor, torch.Tensor]:
-    """``cos, sin`` of ``segments`` evenly spaced angles from 0, each ``(segments,)``."""
-    a = torch.arange(segments, dtype=torch.float64, device=device) * (2.0 * math.pi / segments)
-    return torch.cos(a).to(dtype), torch.sin(a).to(dtype)
+def angles(segments: int, like: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``cos, sin`` of ``segments`` evenly spaced angles from 0, each ``(segments,)``, as constants
+    like ``like`` (see :func:`const`)."""
+    cs = const(circle, segments, like=like)
+    return cs[0], cs[1]
 
 
 def revolve_parts(r: torch.Tensor, y: torch.Tensor, segments: int, *, bottom: torch.Tensor | None = None,
@@ -161,9 +240,8 @@ def revolve_parts(r: torch.Tensor, y: torch.Tensor, segments: int, *, bottom: to
     before and after the profile (None: no pole). bulge: optional ``(q (L,), w (S,))``: ring vertex
     (i, j) moves out by ``q_i * w_j``.
     """
-    c, s = angles(segments, r.dtype, r.device)
-    cs = lift(torch.stack([c, torch.zeros_like(c), -s], -1), r)            # (S, 3)
-    ey = lift(torch.tensor([0.0, 1.0, 0.0]), r)
+    cs = const(ring_dirs, segments, like=r)                                # (S, 3)
+    ey = const(unit, 1, like=r)
     rr = r[:, None] if bulge is None else torch.addcmul(r[:, None], bulge[0][:, None], bulge[1][None, :])
     ring = (rr[..., None] * cs + (y[:, None] * ey)[:, None, :]).reshape(-1, 3)
     parts = []
@@ -189,8 +267,7 @@ def tube(centers: torch.Tensor, normals: torch.Tensor, binormals: torch.Tensor, 
     a, b: (S,) semi-axes along normal and binormal. Returns ``(S * segments + 2, 3)``; the end poles
     are the first and last centers.
     """
-    c, s = angles(segments, centers.dtype, centers.device)
-    c, s = lift(c, a), lift(s, b)
+    c, s = angles(segments, a)
     ring = (centers[:, None, :] + (a[:, None] * c)[..., None] * normals[:, None, :]
             + (b[:, None] * s)[..., None] * binormals[:, None, :])
     return torch.cat([centers[:1], ring.reshape(-1, 3), centers[-1:]])
@@ -217,6 +294,12 @@ def box_faces(count: int) -> torch.Tensor:
     return repeat_faces(None, 8, count, 2, 4, "fan", "fan")
 
 
+def repeat_faces_np(template, n_verts: int, count: int, n_loops: int = 0, k: int = 0, start: Cap = "fan",
+                    end: Cap = "fan") -> np.ndarray:
+    """:func:`repeat_faces` as a (cached, shared) NumPy array."""
+    return _repeat_faces_np(template, n_verts, count, n_loops, k, start, end)
+
+
 # ----------------------------------------------------------------------------------------------
 # Splines
 # ----------------------------------------------------------------------------------------------
@@ -238,9 +321,9 @@ def catmull_rom(ctrl: torch.Tensor, u: torch.Tensor, *, start: torch.Tensor | No
     s = smul(u, float(k - 1))
     seg = torch.clamp(torch.floor(s.detach()), 0, k - 2).long()        # (m,)
     t = s - lift(seg, s)
-    idx = seg[:, None] + torch.arange(4, device=u.device)              # (m, 4)
+    idx = seg[:, None] + torch.arange(4, device=u.device)              # (m, 4) int64
     pts = pad[idx]                                                     # (m, 4, ...)
-    basis = torch.as_tensor(_CR, dtype=u.dtype, device=u.device)       # (4 powers, 4 points)
+    basis = _plain(_cr_basis, (), u.dtype, u.device)                  # (4 powers, 4 points)
     tp = torch.stack([torch.ones_like(t), t, t * t, t * t * t], -1)    # (m, 4)
     w = tp @ basis                                                     # (m, 4)
     extra = (1,) * (pts.dim() - 2)
@@ -273,7 +356,7 @@ def catmull_rom_pad_matrix(k: int, m: int, derivative: bool = False, dtype=torch
     """``(m, k + 2)`` matrix evaluating the spline (or ``d/du`` with ``derivative``) at ``m`` evenly
     spaced parameters from 0 to 1 from the *padded* control points ``[phantom, P_0 .. P_k-1, phantom]``:
     ``values = M @ pad``. Fixed samples make the spline one matmul."""
-    return torch.as_tensor(_cr_pad_np(k, m, derivative), dtype=dtype, device=device)
+    return _plain(_cr_pad_np, (k, m, derivative), dtype, device)
 
 
 @lru_cache(maxsize=64)
@@ -288,7 +371,7 @@ def _cr_matrix_np(k: int, m: int) -> np.ndarray:
 def catmull_rom_matrix(k: int, m: int, dtype=torch.float64, device=None) -> torch.Tensor:
     """``(m, k)`` matrix evaluating :func:`catmull_rom` (default phantoms) at ``m`` evenly spaced
     parameters from 0 to 1: ``values = M @ ctrl``."""
-    return torch.as_tensor(_cr_matrix_np(k, m), dtype=dtype, device=device)
+    return _plain(_cr_matrix_np, (k, m), dtype, device)
 
 
 def signed_volume(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
@@ -297,19 +380,43 @@ def signed_volume(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     return smul((a * torch.linalg.cross(b, c)).sum(), 1.0 / 6.0)
 
 
+@dataclass(frozen=True)
+class Topology:
+    """The faces of a generator's mesh for one set of discrete values and level of detail: built
+    once, cached by the generator, reused for every parameter vector.
+
+    faces: (F, 3) int64 and groups: (F,) int64 NumPy arrays; names: the group names; n_verts: the
+    number of vertices the faces index.
+    """
+
+    faces: np.ndarray
+    groups: np.ndarray
+    names: tuple[str, ...]
+    n_verts: int
+
+    @staticmethod
+    def build(faces: list, counts: list[int], names: list[str]) -> Topology:
+        """From per-group faces (each indexing its group's vertices from 0; NumPy arrays inside
+        torch.func transforms) and vertex counts."""
+        out_f, out_g, off = [], [], 0
+        for g, (f, n) in enumerate(zip(faces, counts)):
+            f = f.numpy() if torch.is_tensor(f) else np.asarray(f, dtype=np.int64)
+            out_f.append(f.reshape(-1, 3) + off)
+            out_g.append(np.full(len(out_f[-1]), g, dtype=np.int64))
+            off += n
+        return Topology(np.concatenate(out_f), np.concatenate(out_g), tuple(names), off)
+
+    def mesh(self, verts: list[torch.Tensor]) -> TriMesh:
+        """A TriMesh from vertex pieces (concatenated once, in order)."""
+        v = torch.cat(verts) if len(verts) > 1 else verts[0]
+        if v.shape[0] != self.n_verts:
+            raise ValueError(f"topology: expected {self.n_verts} vertices, got {v.shape[0]}")
+        dev = v.device
+        faces, groups = torch.from_numpy(self.faces).to(dev), torch.from_numpy(self.groups).to(dev)
+        return TriMesh(v, faces, groups, self.names)
+
+
 def assemble(verts: list[torch.Tensor], faces: list[torch.Tensor], counts: list[int],
              names: list[str]) -> TriMesh:
-    """One TriMesh from vertex pieces (concatenated once, in order) and per-group faces.
-
-    faces[g]: (F_g, 3) int64 indexing group g's vertices from its first one; group g owns the next
-    ``counts[g]`` vertices of the concatenation; its faces get group index g (``names[g]``).
-    """
-    v = torch.cat(verts)
-    out_f, out_g, off = [], [], 0
-    for g, (f, n) in enumerate(zip(faces, counts)):
-        out_f.append(f + off)
-        out_g.append(torch.full((f.shape[0],), g, dtype=torch.int64))
-        off += n
-    if off != v.shape[0]:
-        raise ValueError(f"assemble: expected {off} vertices, got {v.shape[0]}")
-    return TriMesh(v, torch.cat(out_f).to(v.device), torch.cat(out_g).to(v.device), tuple(names))
+    """One TriMesh from vertex pieces and per-group faces (see :meth:`Topology.build`)."""
+    return Topology.build(faces, counts, names).mesh(verts)

@@ -38,10 +38,11 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
 import torch
 
 from ipm.generators import _meshkit as mk
-from ipm.generators._meshkit import lift, smul
+from ipm.generators._meshkit import smul
 from ipm.generators.base import Generator, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
@@ -134,6 +135,7 @@ class BuildingGenerator(Generator):
         self.spec = building_spec()
         self.presets = PRESETS
         self._names = [p.name for p in self.spec.continuous]
+        self._topologies: dict[tuple, mk.Topology] = {}
 
     def _discrete(self, discrete: Mapping[str, int]) -> dict[str, int]:
         out = {}
@@ -159,8 +161,8 @@ class BuildingGenerator(Generator):
         ww = torch.minimum(p["window_width"], smul(bay, 0.9))
         wh = torch.minimum(p["window_height"], smul(fh, 0.85))
         sill = torch.minimum(p["window_sill"], smul(fh, 0.95) - wh)
-        cx = lift(torch.arange(N, dtype=torch.float64) + 0.5, theta) * bay - hx       # (N,) window centers
-        yf = P + lift(torch.arange(F, dtype=torch.float64), theta) * fh                # (F,) floor levels
+        cx = mk.const(mk.half_steps, N, like=theta) * bay - hx                        # (N,) window centers
+        yf = P + mk.const(mk.steps, 0, F, like=theta) * fh                             # (F,) floor levels
         wb = yf + sill                                                                 # window bottoms
         wtop = wb + wh
         hw = smul(ww, 0.5)
@@ -211,7 +213,8 @@ class BuildingGenerator(Generator):
             c = cx[J_t]
             zb, zf = hz - smul(wt, 0.5), hz + bd
             zi = zf - pt
-            Yl = torch.stack([y0, y0 + p["balcony_height"], y0 + p["balcony_height"], y0 - bt, y0 - bt, y0], -1)
+            top, bottom = y0 + p["balcony_height"], y0 - bt
+            Yl = torch.stack([y0, top, top, bottom, bottom, y0], -1)
             Zl = torch.cat([zi, zi, zf, zf, zb, zb])[None].expand(n_bal, -1)
             Xl = torch.stack([c - half, c + half], -1)                                # (B, 2)
             bal_v.append(torch.stack([Xl[:, :, None].expand(-1, -1, 6), Yl[:, None].expand(-1, 2, -1),
@@ -221,7 +224,7 @@ class BuildingGenerator(Generator):
         n_door = S if d["has_door"] else 0
         door_v = []
         if n_door:
-            sc = lift(torch.arange(S, dtype=torch.float64) + 0.5, theta) * sw - hx
+            sc = mk.const(mk.half_steps, S, like=theta) * sw - hx
             dw = smul(torch.minimum(p["door_width"], smul(sw, 0.9)), 0.5)
             lo, hi = _boxes((sc - dw, sc + dw), (zero, p["door_height"]),
                             (hz - smul(wt, 0.5), hz + p["door_depth"]))
@@ -229,13 +232,20 @@ class BuildingGenerator(Generator):
 
         # roof
         ov = p["roof_overhang"]
-        roof_v, roof_f = ROOFS[d["roof_type"]](hx + ov, hz + ov, T, T + p["roof_height"], p)
+        roof_v = ROOFS[d["roof_type"]][0](hx + ov, hz + ov, T, T + p["roof_height"], p)
 
         verts = [wall_v, *win_v, *bal_v, *door_v, roof_v]
-        faces = [mk.box_faces(n_wall), mk.repeat_faces(None, 16, n_win, 4, 4, "fan", "fan"),
-                 mk.repeat_faces(None, 12, n_bal, 2, 6, "fan", "fan"), mk.box_faces(n_door), roof_f]
-        counts = [8 * n_wall, 16 * n_win, 12 * n_bal, 8 * n_door, roof_v.shape[0]]
-        return mk.assemble(verts, faces, counts, list(GROUPS))
+        return self._topology(n_wall, n_win, n_bal, n_door, d["roof_type"]).mesh(verts)
+
+    def _topology(self, n_wall: int, n_win: int, n_bal: int, n_door: int, roof_type: int) -> mk.Topology:
+        key = (n_wall, n_win, n_bal, n_door, roof_type)
+        if key not in self._topologies:
+            roof_f = ROOFS[roof_type][1]()
+            faces = [mk.repeat_faces_np(None, 8, n_wall, 2, 4), mk.repeat_faces_np(None, 16, n_win, 4, 4),
+                     mk.repeat_faces_np(None, 12, n_bal, 2, 6), mk.repeat_faces_np(None, 8, n_door, 2, 4), roof_f]
+            counts = [8 * n_wall, 16 * n_win, 12 * n_bal, 8 * n_door, int(roof_f.max()) + 1]
+            self._topologies[key] = mk.Topology.build(faces, counts, list(GROUPS))
+        return self._topologies[key]
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
         """The mesh of a (validated) value dict (``resolution`` and ``lod`` do not apply)."""
@@ -267,7 +277,7 @@ class BuildingGenerator(Generator):
 
 def _flat_roof(rx, rz, base, top, p):
     """A slab: one box."""
-    return mk.box_verts(*_boxes((-rx, rx), (base, top), (-rz, rz))), mk.box_faces(1)
+    return mk.box_verts(*_boxes((-rx, rx), (base, top), (-rz, rz)))
 
 
 def _gable_roof(rx, rz, base, top, p):
@@ -277,7 +287,7 @@ def _gable_roof(rx, rz, base, top, p):
     x = torch.cat([-rx, -rx, -rx, rx, rx, rx])
     y = torch.cat([base, base, top]).repeat(2)
     z = torch.cat([rz, -rz, zero]).repeat(2)
-    return torch.stack([x, y, z], -1), mk.loft_faces(2, 3, "fan", "fan")
+    return torch.stack([x, y, z], -1)
 
 
 def _hipped_roof(rx, rz, base, top, p):
@@ -288,10 +298,15 @@ def _hipped_roof(rx, rz, base, top, p):
     x = torch.cat([rx, rx, -rx, -rx, ridge, -ridge])
     y = torch.cat([base, base, base, base, top, top])
     z = torch.cat([rz, -rz, -rz, rz, zero, zero])
-    return torch.stack([x, y, z], -1), torch.as_tensor(_HIP_FACES, dtype=torch.int64)
+    return torch.stack([x, y, z], -1)
 
 
-ROOFS = {0: _flat_roof, 1: _gable_roof, 2: _hipped_roof}
+# roof_type -> (vertices from (rx, rz, base, top, params), faces (NumPy))
+ROOFS = {
+    0: (_flat_roof, lambda: mk.repeat_faces_np(None, 8, 1, 2, 4)),
+    1: (_gable_roof, lambda: mk.loft_faces_np(2, 3, "fan", "fan")),
+    2: (_hipped_roof, lambda: np.asarray(_HIP_FACES, dtype=np.int64)),
+}
 
 BALCONY_SLOTS = {                       # balcony_pattern -> keep(floor, window)
     0: lambda i, j: False,

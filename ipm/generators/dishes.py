@@ -17,8 +17,11 @@ Geometry (Y up, the base at y = 0, revolved about Y):
   the handle (towards -X), ``spout_width`` wide (radians, Gaussian in the angle).
 * **Handle** (``has_handle``). A closed tube with elliptic sections swept along a Catmull-Rom curve
   in the vertical plane at ``handle_azimuth`` (degrees from +X towards -Z). Its ends sit inside the
-  wall at heights ``handle_top`` and ``handle_bottom`` (fractions of ``height``), ``handle_embed``
-  of the way from the outer to the inner wall, and meet it horizontally. Five inner control points
+  wall at heights ``handle_top`` and ``handle_bottom`` (fractions of ``height``, kept between the
+  inner bottom and the top of the wall), ``handle_embed`` of the way from the outer to the inner
+  wall *as meshed* (the sampled walls interpolated linearly, the outer one shrunk to the radial
+  polygon's inscribed circle), so they are inside the body at every level of detail wherever the
+  wall is thicker than the polygon's sag, and meet the wall horizontally. Five inner control points
   stand out by ``handle_out_i * handle_reach`` and are lifted by ``handle_lift_i`` times the
   attachment span. Section semi-axes: ``handle_thickness`` (in the handle's plane) and
   ``handle_width`` (across it), scaled linearly by ``1 -/+ handle_taper`` from top to bottom, plus
@@ -99,17 +102,10 @@ def resolve_lod(lod: DishLod | Mapping | str | None) -> DishLod:
         names = {f.name for f in fields(DishLod)}
         bad = sorted(set(lod) - names)
         if bad:
-            raise ValueError(f"lod: unknown field(s) {', '.join(bad)}; expected some of {', '.join(sorted(names))}")
+            raise ValueError(f"lod: unknown field(s) {', '.join(bad)}; "
+                             f"expected some of {', '.join(sorted(names))}")
         return DishLod(**dict(lod))
     raise ValueError(f"lod: expected None, a name, a dict or a DishLod, got {type(lod).__name__}")
-
-
-def lod_from_resolution(resolution: int) -> DishLod:
-    """A level of detail with about ``resolution`` segments around the axis."""
-    r = max(8, int(resolution))
-    wall = 8 * max(2, r // 16) + 1
-    return DishLod(radial=r, wall=wall, rim=2 * max(1, r // 24) + 1, bottom=max(2, r // 16),
-                   handle_sections=max(8, 2 * r // 3), handle_ring=max(6, r // 6))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -222,6 +218,11 @@ class DishesGenerator(Generator):
         self.presets = _resample_presets(self.k)
         self._names = [p.name for p in self.spec.continuous]
         idx = {n: i for i, n in enumerate(self._names)}
+        self._index = idx
+        self._topologies: dict[tuple, mk.Topology] = {}
+        # the body's parameters come first (the handle's never move the body)
+        self._n_body = idx["handle_top"]
+        assert all(n.startswith("handle_") for n in self._names[self._n_body:])
 
         def run(first: str, count: int) -> slice:
             return slice(idx[first], idx[first] + count)
@@ -232,41 +233,96 @@ class DishesGenerator(Generator):
                         "sections": run("handle_widen_0", 2 * N_HANDLE)}
 
     # -- geometry ------------------------------------------------------------------------------
+    def _check(self, theta: torch.Tensor, discrete: Mapping[str, int], lod) -> tuple[int, DishLod]:
+        n = len(self._names)
+        if theta.ndim != 1 or theta.shape[0] != n:
+            raise ValueError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
+        prm = self.spec["has_handle"]
+        has_handle = prm.check(discrete.get("has_handle", prm.default))
+        return int(has_handle), resolve_lod(lod)
+
+    def _stage(self, theta: torch.Tensor, has_handle: int, L: DishLod) -> dict[str, torch.Tensor]:
+        """Everything before the revolution: the profile loop ``r, y (P,)``, the pole heights
+        ``y_bottom, y_top (1,)``, the spout bulge factors ``q (P,)`` (per ring) and ``w (S,)`` (per
+        angle), and the handle's vertices ``(Vh, 3)``."""
+        p = _Named(theta, self._index)
+        v = {key: theta[sl] for key, sl in self._slices.items()}
+        v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
+        prof = _profile(p, v["radii"], L)
+        c, _ = mk.angles(L.radial, theta)
+        out = {"r": prof.r, "y": prof.y, "y_bottom": prof.y_bottom, "y_top": prof.y_top,
+               "q": p["spout"] * _spout_height(p, prof.y), "w": _spout_angle(p, c)}
+        if has_handle:
+            out["handle"] = _handle(p, v, prof, L)
+        return out
+
+    def _topology(self, has_handle: int, L: DishLod) -> mk.Topology:
+        key = (has_handle, L)
+        if key not in self._topologies:
+            n_prof = 2 * (L.bottom - 1) + 2 * L.wall + L.rim
+            faces = [mk.loft_faces_np(n_prof, L.radial, "pole", "pole")]
+            counts, names = [n_prof * L.radial + 2], ["body"]
+            if has_handle:
+                faces.append(mk.loft_faces_np(L.handle_sections, L.handle_ring, "pole", "pole"))
+                counts.append(L.handle_sections * L.handle_ring + 2)
+                names.append("handle")
+            self._topologies[key] = mk.Topology.build(faces, counts, names)
+        return self._topologies[key]
+
     def mesh(self, theta: torch.Tensor, discrete: Mapping[str, int], lod=None) -> TriMesh:
         """The dish for ``theta: (n,) float`` (vertices differentiable in it) and ``has_handle``.
 
         Returns a TriMesh with groups ``body`` (and ``handle``); dtype and device follow ``theta``.
         """
-        n = len(self._names)
-        if theta.ndim != 1 or theta.shape[0] != n:
-            raise ValueError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
-        has_handle = int(discrete.get("has_handle", self.spec["has_handle"].default))
-        if has_handle not in (0, 1):
-            raise ValueError(f"has_handle: expected 0 or 1, got {has_handle}")
-        L = resolve_lod(lod)
-        p = dict(zip(self._names, theta.split(1)))
-        v = {key: theta[sl] for key, sl in self._slices.items()}
-        v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
-        prof = _profile(p, v["radii"], L)
-        c, _ = mk.angles(L.radial, theta.dtype, theta.device)
-        bulge = (p["spout"] * _spout_height(p, prof.y), _spout_angle(p, lift(c, theta)))
-        verts = mk.revolve_parts(prof.r, prof.y, L.radial, bottom=prof.y_bottom, top=prof.y_top, bulge=bulge)
-        n_prof = prof.r.shape[0]
-        faces = [mk.loft_faces(n_prof, L.radial, "pole", "pole")]
-        counts, names = [n_prof * L.radial + 2], ["body"]
+        has_handle, L = self._check(theta, discrete, lod)
+        st = self._stage(theta, has_handle, L)
+        verts = mk.revolve_parts(st["r"], st["y"], L.radial, bottom=st["y_bottom"], top=st["y_top"],
+                                 bulge=(st["q"], st["w"]))
         if has_handle:
-            verts.append(_handle(p, v, prof, L))
-            faces.append(mk.loft_faces(L.handle_sections, L.handle_ring, "pole", "pole"))
-            counts.append(L.handle_sections * L.handle_ring + 2)
-            names.append("handle")
-        return mk.assemble(verts, faces, counts, names)
+            verts.append(st["handle"])
+        return self._topology(has_handle, L).mesh(verts)
+
+    def jacobian(self, theta: torch.Tensor, discrete: Mapping[str, int], lod=None) -> torch.Tensor:
+        """``d verts / d theta``: ``(3V, n)`` (rows x0, y0, z0, x1, ...), equal to
+        ``mesh_jacobian(lambda t: mesh(t, ...).verts, theta)`` but faster.
+
+        Forward mode runs only through :meth:`_stage` (the profile and the handle); the revolved
+        rings ``(r + q w) (cos, -sin)`` are bilinear in the profile, so their rows follow in closed
+        form, and only for the body's own parameters (the handle's never move the body).
+        """
+        from torch.func import jacfwd
+
+        has_handle, L = self._check(theta, discrete, lod)
+        keys = ("r", "y", "q", "w", "y_bottom", "y_top") + (("handle",) if has_handle else ())
+
+        def stage(t):
+            st = self._stage(t, has_handle, L)
+            out = tuple(st[k] for k in keys)
+            return out, tuple(x.detach() for x in out)
+
+        jac, val = jacfwd(stage, has_aux=True)(theta)
+        J_st, st = dict(zip(keys, jac)), dict(zip(keys, val))
+        nb, n = self._n_body, theta.shape[0]
+        P, S = st["r"].shape[0], L.radial
+        c, s = mk.angles(S, theta)
+        Jr, Jy, Jq, Jw = (J_st[k][..., :nb] for k in ("r", "y", "q", "w"))
+        w, q = st["w"][None, :, None], st["q"][:, None, None]
+        J_rr = Jr[:, None, :] + w * Jq[:, None, :] + q * Jw[None, :, :]                   # (P, S, nb)
+        c, s = c[None, :, None], s[None, :, None]
+        ring = torch.stack([J_rr * c, Jy[:, None, :].expand(P, S, nb), -(J_rr * s)], 2)
+        zero = theta.new_zeros(1, nb)
+        pole_b = torch.cat([zero, J_st["y_bottom"][:, :nb], zero])
+        pole_t = torch.cat([zero, J_st["y_top"][:, :nb], zero])
+        n_body = 3 * (P * S + 2)
+        J = theta.new_zeros(n_body + (J_st["handle"].numel() // n if has_handle else 0), n)
+        J[:n_body, :nb] = torch.cat([pole_b, ring.reshape(-1, nb), pole_t])
+        if has_handle:
+            J[n_body:] = J_st["handle"].reshape(-1, n)
+        return J
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
-        """The mesh of a (validated) value dict; ``lod`` wins over ``resolution`` (segments around Y)."""
-        full = self.spec.validate(values)
-        if lod is None and resolution is not None:
-            lod = lod_from_resolution(resolution)
-        theta, discrete = self.split(full)
+        """The mesh of a value dict at level of detail ``lod`` (``resolution`` is for SDF generators)."""
+        theta, discrete = self.split(self.spec.validate(values))
         return self.mesh(theta, discrete, lod).detach()
 
     def counts(self, discrete: Mapping[str, int], lod=None) -> tuple[int, int]:
@@ -279,6 +335,19 @@ class DishesGenerator(Generator):
             v += L.handle_sections * L.handle_ring + 2
             f += 2 * L.handle_ring * (L.handle_sections - 1) + 2 * L.handle_ring
         return v, f
+
+
+class _Named:
+    """Named parameters as ``(1,)`` slices of ``theta``, made on first use."""
+
+    def __init__(self, theta: torch.Tensor, index: Mapping[str, int]):
+        self._theta, self._index, self._cache = theta, index, {}
+
+    def __getitem__(self, name: str) -> torch.Tensor:
+        if name not in self._cache:
+            i = self._index[name]
+            self._cache[name] = self._theta[i:i + 1]
+        return self._cache[name]
 
 
 @dataclass(frozen=True)
@@ -316,7 +385,7 @@ def _profile(p, radii: torch.Tensor, L: DishLod) -> _Profile:
     dome = p["bottom_dome"] * smul(b, 0.8)
 
     # outer wall: fixed spline samples, one matmul
-    u = lift(torch.linspace(0.0, 1.0, L.wall, dtype=dt, device=dev), radii)
+    u = mk.const(np.linspace, 0.0, 1.0, L.wall, like=radii)
     R_out = torch.clamp(mk.catmull_rom_matrix(k, L.wall, dt, dev) @ radii, min=RADIUS_MIN)
     y_out = Hw * u
     # inner wall, from the top down to the bottom, at heights that depend on the parameters
@@ -325,18 +394,27 @@ def _profile(p, radii: torch.Tensor, L: DishLod) -> _Profile:
     R_at, dR_at = mk.catmull_rom(radii, y_in / Hw, derivative=True)
     r_in = _inner(p, torch.clamp(R_at, min=RADIUS_MIN), dR_at, H)
     # rim: interior samples of half an ellipse from the outer to the inner wall top
-    th = torch.arange(1, L.rim + 1, dtype=torch.float64, device=dev) * (math.pi / (L.rim + 1))
-    ct, st = lift(torch.cos(th), radii), lift(torch.sin(th), radii)
+    ct, st = mk.const(_rim_arc, L.rim, like=radii)
     a = smul(R_out[-1:] - r_in[:1], 0.5)
     r_rim = (R_out[-1:] - a) + a * ct
     y_rim = Hw + c * st
     # bottoms: rings between the axis and the walls
-    j = torch.arange(1, L.bottom, dtype=torch.float64, device=dev) / L.bottom      # (bottom - 1,)
-    jl, jq = lift(j, radii), lift(1.0 - j * j, radii)
-    jr = torch.flip(jl, (0,))
+    jl, jq, jr = mk.const(_bottom_rings, L.bottom, like=radii)                     # (bottom - 1,) each
     r = torch.cat([R_out[:1] * jl, R_out, r_rim, r_in, r_in[-1:] * jr])
     y = torch.cat([dome * jq, y_out, y_rim, y_in, b.expand(L.bottom - 1)])
     return _Profile(r, y, dome, b, Hw, b, R_out, torch.flip(r_in, (0,)))
+
+
+def _rim_arc(n: int) -> np.ndarray:
+    """``(2, n)``: cos and sin of the n interior angles of a half turn."""
+    a = np.arange(1, n + 1) * (math.pi / (n + 1))
+    return np.stack([np.cos(a), np.sin(a)])
+
+
+def _bottom_rings(n: int) -> np.ndarray:
+    """``(3, n - 1)``: ring fractions j / n (j = 1 .. n-1), 1 - (j / n)^2, and the fractions reversed."""
+    j = np.arange(1, n) / n
+    return np.stack([j, 1.0 - j * j, j[::-1]])
 
 
 def _lerp_samples(values: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
@@ -378,7 +456,7 @@ def _handle(p, v, prof: _Profile, L: DishLod) -> torch.Tensor:
     outer = smul(R_att + bulge, math.cos(math.pi / L.radial))
     rho_att = outer - p["handle_embed"] * (outer - (r_in + bulge))                   # (2,)
     # control points in the handle's plane: (rho, y)
-    s = lift(torch.arange(1, N_HANDLE - 1, dtype=torch.float64, device=dev) / (N_HANDLE - 1), radii)
+    s = mk.const(mk.steps, 1, N_HANDLE - 1, 1.0 / (N_HANDLE - 1), like=radii)
     top, bot = rho_att[:1], rho_att[1:]
     rho_mid = top + (bot - top) * s + p["handle_reach"] * v["out"]
     y_mid = y_att[:1] + (y_att[1:] - y_att[:1]) * s + v["lift"] * (y_att[:1] - y_att[1:])
@@ -394,13 +472,11 @@ def _handle(p, v, prof: _Profile, L: DishLod) -> torch.Tensor:
     tang = mk.catmull_rom_pad_matrix(N_HANDLE, m, True, dt, dev) @ pad
     tang = tang / torch.sqrt(sadd((tang * tang).sum(-1, keepdim=True), 1e-20))
     # section semi-axes: linear taper plus splined per-section offsets
-    u = torch.linspace(-1.0, 1.0, m, dtype=dt, device=dev)
-    taper = sadd(p["handle_taper"] * lift(u, radii), 1.0)
+    taper = sadd(p["handle_taper"] * mk.const(np.linspace, -1.0, 1.0, m, like=radii), 1.0)
     offs = mk.catmull_rom_matrix(N_HANDLE, m, dt, dev) @ v["sections"]               # (m, 2)
     bw = torch.clamp(p["handle_width"] * taper + offs[:, 0], min=SECTION_MIN)
     a = torch.clamp(p["handle_thickness"] * taper + offs[:, 1], min=SECTION_MIN)
-    c, sn = mk.angles(L.handle_ring, dt, dev)
-    c, sn = lift(c, radii), lift(sn, radii)
+    c, sn = mk.angles(L.handle_ring, radii)
     ac = a[:, None] * c                                                              # (m, Q)
     R_loc = centers[:, :1] + ac * (-tang[:, 1:])                                     # in-plane normal
     Y_loc = centers[:, 1:] + ac * tang[:, :1]

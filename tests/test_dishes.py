@@ -1,0 +1,225 @@
+"""Dishes generator: closed, outward, non-degenerate bodies and handles for every preset and for random
+parameters; counts fixed by the discrete values and the level of detail; sizes as the parameters
+say; Jacobians equal to float64 central differences."""
+
+from __future__ import annotations
+
+import igl
+import numpy as np
+import pytest
+import torch
+import trimesh
+
+from ipm.generators import get_generator
+from ipm.generators.dishes import LODS, DishesGenerator, DishLod, resolve_lod
+from ipm.jacobian import check_mesh_jacobian, mesh_jacobian
+
+GEN = get_generator("dishes")
+PRESETS = sorted(GEN.presets)
+LOW = LODS["low"]
+
+
+def build(values, lod=LOW):
+    theta, discrete = GEN.split(values)
+    return GEN.mesh(theta, discrete, lod)
+
+
+def part(mesh, name):
+    """(verts (n, 3) float64 numpy, faces (m, 3) numpy) of one group, re-indexed from 0."""
+    g = mesh.group_names.index(name)
+    faces = mesh.faces.numpy()[mesh.groups.numpy() == g]
+    lo, hi = faces.min(), faces.max()
+    return mesh.verts.detach().numpy().astype(np.float64)[lo:hi + 1], faces - lo
+
+
+def winding_number(v, f, points):
+    """Generalized winding number (sum of solid angles, van Oosterom and Strackee) of a closed mesh
+    at ``points (P, 3)``: 1 inside, 0 outside."""
+    a, b, c = (v[f[:, i]][None] - points[:, None] for i in range(3))              # (P, F, 3)
+    la, lb, lc = (np.linalg.norm(x, axis=-1) for x in (a, b, c))
+    det = np.einsum("pfi,pfi->pf", a, np.cross(b, c))
+    den = la * lb * lc + np.einsum("pfi,pfi->pf", a, b) * lc + np.einsum("pfi,pfi->pf", b, c) * la \
+        + np.einsum("pfi,pfi->pf", c, a) * lb
+    return (2 * np.arctan2(det, den)).sum(1) / (4 * np.pi)
+
+
+def check_closed_solid(v, f, what):
+    """Reference check with trimesh: watertight, consistently wound, outward, no degenerate face."""
+    m = trimesh.Trimesh(v, f, process=False)
+    assert m.is_watertight, f"{what}: not watertight"
+    assert m.is_winding_consistent, f"{what}: inconsistent winding"
+    assert m.volume > 0, f"{what}: volume {m.volume} (faces point inwards)"
+    areas = m.area_faces
+    assert areas.min() > 1e-12 * max(1.0, areas.max()), f"{what}: degenerate face, area {areas.min()}"
+    return m
+
+
+def check_closed_solid_fast(v, f, what):
+    """The same facts, vectorized (for the random sweeps): every directed edge once and its reverse
+    once (closed and consistently wound), positive signed volume, no degenerate face."""
+    n = len(v)
+    e = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key, rev = e[:, 0] * n + e[:, 1], e[:, 1] * n + e[:, 0]
+    assert len(np.unique(key)) == len(key), f"{what}: an edge is used twice in the same direction"
+    assert np.array_equal(np.sort(key), np.sort(rev)), f"{what}: open or inconsistently wound"
+    a, b, c = v[f[:, 0]], v[f[:, 1]], v[f[:, 2]]
+    assert np.einsum("ij,ij->", a, np.cross(b, c)) > 0, f"{what}: faces point inwards"
+    areas = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    assert areas.min() > 1e-12 * max(1.0, areas.max()), f"{what}: degenerate face, area {areas.min()}"
+
+
+def check_handle_touches_body(mesh, what, radial):
+    """Both handle end centers (the caps' pole vertices) lie in the body solid, or, where the wall is
+    thinner than the polygon's sag (then the wall's inside is ill-defined), on its surface."""
+    bv, bf = part(mesh, "body")
+    hv, _ = part(mesh, "handle")
+    ends = hv[[0, -1]]
+    inside = winding_number(bv, bf, ends) > 0.5
+    if inside.all():
+        return
+    dist = np.sqrt(igl.point_mesh_squared_distance(ends, bv, bf)[0])
+    sag = np.linalg.norm(bv[:, [0, 2]], axis=1).max() * (1 - np.cos(np.pi / radial))
+    assert np.all(inside | (dist <= 2 * sag + 1e-9)), f"{what}: handle ends {ends} are off the body (distance {dist})"
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_presets_are_closed_solids_with_a_touching_handle(preset):
+    values = GEN.values(preset)
+    mesh = build(values, "medium")
+    check_closed_solid(*part(mesh, "body"), f"{preset} body")
+    assert ("handle" in mesh.group_names) == bool(values["has_handle"])
+    if values["has_handle"]:
+        check_closed_solid(*part(mesh, "handle"), f"{preset} handle")
+        check_handle_touches_body(mesh, preset, LODS["medium"].radial)
+        bv, bf = part(mesh, "body")
+        ends = part(mesh, "handle")[0][[0, -1]]
+        assert np.all(igl.winding_number(bv, bf, ends) > 0.5), "preset handle ends are embedded in the wall"
+        assert np.allclose(winding_number(bv, bf, ends), igl.winding_number(bv, bf, ends))
+
+
+def test_random_parameters_always_give_closed_solids():
+    rng = np.random.default_rng(7)
+    for i in range(200):
+        values = GEN.spec.random(rng)
+        mesh = build(values)
+        what = f"random set {i}: {values}"
+        check_closed_solid_fast(*part(mesh, "body"), what)
+        if values["has_handle"]:
+            check_closed_solid_fast(*part(mesh, "handle"), what)
+            check_handle_touches_body(mesh, what, LOW.radial)
+
+
+def test_counts_depend_only_on_discrete_values_and_lod():
+    rng = np.random.default_rng(3)
+    a, b = GEN.spec.random(rng), GEN.spec.random(rng)
+    for has_handle in (0, 1):
+        a["has_handle"] = b["has_handle"] = has_handle
+        ma, mb = build(a), build(b)
+        assert torch.equal(ma.faces, mb.faces) and torch.equal(ma.groups, mb.groups)
+        assert (ma.n_verts, ma.n_faces) == GEN.counts({"has_handle": has_handle}, LOW)
+    assert build(a, "high").n_verts > build(a, "low").n_verts
+
+
+def test_height_and_profile_radii_match_the_parameters():
+    values = GEN.values("vase", {"spout": 0.0})
+    lod = DishLod(radial=16, wall=33, rim=5, bottom=3, handle_sections=8, handle_ring=6)
+    v = build(values, lod).verts.detach().double()
+    assert float(v[:, 1].max()) == pytest.approx(values["height"], abs=1e-12)
+    assert float(v[:, 1].min()) == pytest.approx(0.0, abs=1e-12)
+    # the outer wall rings at the control heights have exactly the control radii
+    rings = v[1:-1].reshape(-1, lod.radial, 3)
+    wall = rings[lod.bottom - 1: lod.bottom - 1 + lod.wall]
+    radius = torch.linalg.vector_norm(wall[..., [0, 2]], dim=-1)                  # (wall, radial)
+    k = 9
+    want = torch.tensor([values[f"radius_{i}"] for i in range(k)], dtype=torch.float64)
+    got = radius[:: (lod.wall - 1) // (k - 1)]
+    assert torch.allclose(got, want[:, None].expand_as(got), atol=1e-12)
+    assert float(radius.max()) >= float(want.max()) - 1e-12
+
+
+def test_mug_bounding_box_matches_the_radius_and_the_handle_reach():
+    values = GEN.values("mug")
+    body_v = torch.as_tensor(part(build(values, "high"), "body")[0])
+    r = torch.linalg.vector_norm(body_v[:, [0, 2]], dim=-1)
+    assert float(r.max()) == pytest.approx(values["radius_8"], rel=1e-9)      # radii grow upwards
+    hv = torch.as_tensor(part(build(values, "high"), "handle")[0])
+    assert float(hv[:, 0].max()) > values["radius_8"] + 0.5 * values["handle_reach"]
+
+
+def test_spout_bulges_the_lip_opposite_the_handle_only():
+    plain, spouted = GEN.values("pitcher", {"spout": 0.0}), GEN.values("pitcher", {"spout": 0.2})
+    a, b = (torch.as_tensor(part(build(x), "body")[0]) for x in (plain, spouted))
+    shift = (b - a).norm(dim=-1)
+    assert torch.all(shift[a[:, 1] < (1 - plain["spout_length"]) * plain["height"] - 1e-9] == 0)
+    moved = shift > 0.01 * shift.max()           # the angular profile is a Gaussian: tiny elsewhere
+    assert float(shift.max()) == pytest.approx(0.2, rel=0.05)
+    assert torch.all(b[moved, 0] < 0), "the spout is on the -X side"
+
+
+def test_lod_changes_counts_not_the_object():
+    values = GEN.values("teacup")
+    lo = build(values, "low").verts.detach()
+    hi = build(values, "high").verts.detach()
+    assert hi.shape[0] > 3 * lo.shape[0]
+    assert torch.allclose(lo.amin(0), hi.amin(0), atol=0.02) and torch.allclose(lo.amax(0), hi.amax(0), atol=0.02)
+
+
+def test_lod_accepts_names_dicts_and_dataclasses_and_rejects_the_rest():
+    assert resolve_lod("high") == LODS["high"] and resolve_lod(None) == LODS["medium"]
+    assert resolve_lod({"radial": 12}).radial == 12
+    with pytest.raises(ValueError, match="lod rim: expected an odd number"):
+        DishLod(rim=4)
+    with pytest.raises(ValueError, match="lod: expected one of low, medium, high, got 'ultra'"):
+        resolve_lod("ultra")
+    with pytest.raises(ValueError, match="unknown field"):
+        resolve_lod({"segments": 3})
+    glass = GEN.values("glass")
+    assert GEN.to_mesh(glass, resolution=20).n_verts == GEN.to_mesh(glass).n_verts == GEN.counts(glass)[0]
+
+
+def test_other_profile_resolutions_resample_the_presets():
+    g = DishesGenerator(n_radii=5)
+    assert "radius_4" in g.spec and "radius_5" not in g.spec
+    m = g.to_mesh(g.values("bottle"), lod="low")
+    check_closed_solid(*part(m, "body"), "5-radius bottle")
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_jacobian_matches_float64_central_differences(preset):
+    theta, discrete = GEN.split(GEN.values(preset))
+    check = check_mesh_jacobian(lambda t: GEN.mesh(t, discrete, LOW).verts, theta)
+    assert check.max_rel_error <= 1e-6, check
+
+
+def test_jacobian_with_handle_offsets_and_azimuth_matches_central_differences():
+    values = GEN.values("mug", {"handle_azimuth": 35.0, "handle_widen_2": 0.02, "handle_thicken_5": -0.01,
+                                "spout": 0.1, "handle_taper": 0.3, "bottom_dome": 0.5})
+    theta, discrete = GEN.split(values)
+    check = check_mesh_jacobian(lambda t: GEN.mesh(t, discrete, LOW).verts, theta)
+    assert check.max_rel_error <= 1e-6, check
+
+
+def test_without_handle_there_are_no_handle_rows_and_handle_parameters_do_nothing():
+    values = GEN.values("mug", {"has_handle": 0})
+    theta, discrete = GEN.split(values)
+    mesh = GEN.mesh(theta, discrete, LOW)
+    assert mesh.group_names == ("body",)
+    assert mesh.n_verts == GEN.counts({"has_handle": 0}, LOW)[0]
+    J = mesh_jacobian(lambda t: GEN.mesh(t, discrete, LOW).verts, theta)
+    names = [p.name for p in GEN.spec.continuous]
+    handle_cols = [i for i, n in enumerate(names) if n.startswith("handle_")]
+    assert J.shape == (3 * mesh.n_verts, len(names))
+    assert torch.count_nonzero(J[:, handle_cols]) == 0
+    assert torch.count_nonzero(J[:, names.index("height")]) > 0
+
+
+def test_handle_parameters_move_only_the_handle():
+    theta, discrete = GEN.split(GEN.values("mug"))
+    mesh = GEN.mesh(theta, discrete, LOW)
+    J = mesh_jacobian(lambda t: GEN.mesh(t, discrete, LOW).verts, theta).reshape(mesh.n_verts, 3, -1)
+    names = [p.name for p in GEN.spec.continuous]
+    n_body = GEN.counts({"has_handle": 0}, LOW)[0]
+    for i, n in enumerate(names):
+        if n.startswith("handle_"):
+            assert torch.count_nonzero(J[:n_body, :, i]) == 0, n
+            assert torch.count_nonzero(J[n_body:, :, i]) > 0, n
