@@ -9,13 +9,11 @@ parameters); gradient <= 3x one generation.
 
 from __future__ import annotations
 
-import statistics
-import time
 from pathlib import Path
 
 import torch
 
-from benchmarks.common import write_results
+from benchmarks.common import timeit, write_results
 
 REPEAT = 9
 
@@ -36,20 +34,6 @@ def _fd_jacobian(f, theta: torch.Tensor, step: float = 1e-3) -> torch.Tensor:
     return torch.stack(cols, 1)
 
 
-def _interleaved(fns: dict, repeat: int) -> dict[str, float]:
-    """Median wall time of each function, timed round-robin (one call of each per round) so that a
-    change in the machine's load hits every measure alike."""
-    for fn in fns.values():
-        fn()
-    times: dict[str, list[float]] = {k: [] for k in fns}
-    for _ in range(repeat):
-        for k, fn in fns.items():
-            t0 = time.perf_counter()
-            fn()
-            times[k].append(time.perf_counter() - t0)
-    return {k: statistics.median(v) for k, v in times.items()}
-
-
 def _rows(name: str, preset: str, f, theta: torch.Tensor, jac, jac_label: str, extra=None) -> list[dict]:
     n = theta.shape[0]
     V = f(theta).shape[0]
@@ -63,11 +47,12 @@ def _rows(name: str, preset: str, f, theta: torch.Tensor, jac, jac_label: str, e
         th = theta.clone().requires_grad_(True)
         (f(th) - target).square().mean().backward()
 
-    fns = {"gen": gen, "jac": lambda: jac(theta), "grad": grad}
+    # one measure at a time (OpenMP workers woken by a big Jacobian keep spinning for a while and
+    # would slow down a generation timed right after it on a busy 2-core machine)
+    t = {"gen": timeit(gen, REPEAT), "grad": timeit(grad, REPEAT), "jac": timeit(lambda: jac(theta), 5)}
     if extra is not None:
-        fns["extra"] = lambda: extra[1](theta)
-    t = _interleaved(fns, REPEAT)
-    t_fd = _interleaved({"fd": lambda: _fd_jacobian(f, theta)}, 3)["fd"]
+        t["extra"] = timeit(lambda: extra[1](theta), 5)
+    t_fd = timeit(lambda: _fd_jacobian(f, theta), 3)
     t_gen, t_jac, t_grad = t["gen"], t["jac"], t["grad"]
     best = min(t_jac, t.get("extra", t_jac))
     base = {"generator": name, "preset": preset, "vertices": V, "params": n}

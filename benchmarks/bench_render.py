@@ -1,5 +1,5 @@
 """Renderer speed: soft silhouette forward+backward over image size x mesh size, the SDF silhouette of the
-"chair" tree, and exact masks; float32, 2 threads, median of repeats.
+"chair" tree, and exact masks; float32, 2 threads, median and best of repeats.
 
 Meshes are the scanned mug ``ocrtoc_mug.ply`` (16k faces) from ../shared/data/real, normalized like the
 evaluation protocol and decimated or subdivided to about 1k, 10k and 50k faces with pymeshlab (a UV
@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.common import timeit, write_results
+from benchmarks.common import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 MUG = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply").resolve()
@@ -63,6 +63,7 @@ def run(out_dir: Path) -> list[dict]:
     from ipm.render.soft import blur_radius, soft_silhouette, span_rows, visible_triangles
 
     torch.set_num_threads(2)
+    load_before = _loadavg()
     rows = []
     cams = {s: input_views(1, s)[0] for s in SIZES}
     for n, size in itertools.product(FACES, SIZES):
@@ -77,37 +78,45 @@ def run(out_dir: Path) -> list[dict]:
             with torch.no_grad():
                 soft_silhouette(verts, faces, cam, sigma=SIGMA)
 
-        t_fb = timeit(fwd_bwd, repeat=5)
-        t_f = timeit(fwd, repeat=5)
-        t_hard = timeit(lambda: hard_mask(verts, faces, cam), repeat=5)
+        t_fb, b_fb = timeit(fwd_bwd)
+        t_f, _ = timeit(fwd)
+        t_hard, _ = timeit(lambda: hard_mask(verts, faces, cam))
         tri, _, _ = visible_triangles(verts, faces, cam, 1e-3)
         pairs = sum(g.n_pairs for g in span_rows(tri, blur_radius(SIGMA, 1e-6), size, size)[0])
         row = {"measure": f"soft silhouette {size}^2, {faces.shape[0]} faces ({source})",
-               "fwd+bwd ms": 1e3 * t_fb, "fwd ms": 1e3 * t_f, "hard mask ms": 1e3 * t_hard,
-               "pairs": pairs, "ns/pair fwd+bwd": 1e9 * t_fb / max(pairs, 1), "target": "-", "ok": "-"}
+               "fwd+bwd ms": 1e3 * t_fb, "best fwd+bwd ms": 1e3 * b_fb, "fwd ms": 1e3 * t_f,
+               "hard mask ms": 1e3 * t_hard,
+               "pairs": pairs, "ns/pair (best)": 1e9 * b_fb / max(pairs, 1), "target": "-", "ok": "-"}
         if size == 256 and n == 10_000:
-            row["target"], row["ok"] = "fwd+bwd <= 100 ms", t_fb <= 0.1
+            row["target"], row["ok"] = "fwd+bwd <= 100 ms", f"median {t_fb <= 0.1}, best {b_fb <= 0.1}"
         if size == 128 and n == 10_000:
-            row["target"] = f">= 10x faster than {MITSUBA_CPU_S} s (<= {1e3 * MITSUBA_CPU_S / 10:.0f} ms)"
-            row["ok"] = t_fb <= MITSUBA_CPU_S / 10
+            lim = MITSUBA_CPU_S / 10
+            row["target"] = f">= 10x faster than {MITSUBA_CPU_S} s (<= {1e3 * lim:.0f} ms)"
+            row["ok"] = f"median {t_fb <= lim}, best {b_fb <= lim}"
         rows.append(row)
 
-    # the same at the target point with the compiled kernels (first call compiles; not timed)
+    # the target points with the compiled kernels (the first calls compile; not timed)
     verts, faces, source = _cache[10_000]
-    cam = cams[256]
-    try:
-        def fb_compiled():
-            v = verts.clone().requires_grad_(True)
-            soft_silhouette(v, faces, cam, sigma=SIGMA, backend="compiled").sum().backward()
+    for size in (128, 256):
+        cam = cams[size]
+        try:
+            def fb_compiled():
+                v = verts.clone().requires_grad_(True)
+                soft_silhouette(v, faces, cam, sigma=SIGMA, backend="compiled").sum().backward()
 
-        t_c = timeit(fb_compiled, repeat=5, warmup=2)
-        rows.append({"measure": f"soft silhouette 256^2, {faces.shape[0]} faces, backend=compiled",
-                     "fwd+bwd ms": 1e3 * t_c, "fwd ms": "-", "hard mask ms": "-", "pairs": "-",
-                     "ns/pair fwd+bwd": "-", "target": "fwd+bwd <= 100 ms", "ok": t_c <= 0.1})
-    except Exception as e:  # no C++ compiler, or torch.compile unsupported here
-        rows.append({"measure": f"backend=compiled unavailable: {type(e).__name__}", "fwd+bwd ms": "-",
-                     "fwd ms": "-", "hard mask ms": "-", "pairs": "-", "ns/pair fwd+bwd": "-", "target": "-",
-                     "ok": "-"})
+            t_c, b_c = timeit(fb_compiled, warmup=2)
+        except Exception as e:  # no C++ compiler, or torch.compile unsupported here
+            rows.append({"measure": f"backend=compiled unavailable: {type(e).__name__}", "fwd+bwd ms": "-",
+                         "best fwd+bwd ms": "-", "fwd ms": "-", "hard mask ms": "-", "pairs": "-",
+                         "ns/pair (best)": "-", "target": "-", "ok": "-"})
+            break
+        limit = 0.1 if size == 256 else MITSUBA_CPU_S / 10
+        rows.append({"measure": f"soft silhouette {size}^2, {faces.shape[0]} faces ({source}), "
+                                "backend=compiled",
+                     "fwd+bwd ms": 1e3 * t_c, "best fwd+bwd ms": 1e3 * b_c, "fwd ms": "-",
+                     "hard mask ms": "-", "pairs": "-", "ns/pair (best)": "-",
+                     "target": f"fwd+bwd <= {1e3 * limit:.0f} ms",
+                     "ok": f"median {t_c <= limit}, best {b_c <= limit}"})
 
     tree = get_generator("chair").tree
     lo, hi = tree.bounds()
@@ -118,15 +127,43 @@ def run(out_dir: Path) -> list[dict]:
         th = theta0.clone().requires_grad_(True)
         sdf_silhouette(lambda p: tree.sdf(th, p), cam, lo, hi).sum().backward()
 
-    t_sdf = timeit(sdf_fb, repeat=5)
-    rows.append({"measure": "SDF silhouette 128^2, chair tree", "fwd+bwd ms": 1e3 * t_sdf, "fwd ms": "-",
-                 "hard mask ms": "-", "pairs": "-", "ns/pair fwd+bwd": "-",
-                 "target": f"vs {MITSUBA_CPU_S} s (Mitsuba 3 CPU)", "ok": f"{MITSUBA_CPU_S / t_sdf:.1f}x faster"})
+    t_sdf, b_sdf = timeit(sdf_fb, repeat=5)
+    rows.append({"measure": "SDF silhouette 128^2, chair tree", "fwd+bwd ms": 1e3 * t_sdf,
+                 "best fwd+bwd ms": 1e3 * b_sdf, "fwd ms": "-", "hard mask ms": "-", "pairs": "-",
+                 "ns/pair (best)": "-",
+                 "target": f"vs {MITSUBA_CPU_S} s (Mitsuba 3 CPU)",
+                 "ok": f"{MITSUBA_CPU_S / t_sdf:.1f}x faster (best {MITSUBA_CPU_S / b_sdf:.1f}x)"})
     notes = (f"sigma = {SIGMA} px^2, eps = 1e-6 (blur radius {blur_radius(SIGMA, 1e-6):.2f} px); pairs = "
-             "evaluated (pixel, triangle) pairs including padding. backend=eager unless stated.")
-    write_results(out_dir, "render", "Renderer: soft silhouettes (forward+backward), SDF silhouette, exact masks",
+             "evaluated (pixel, triangle) pairs including padding; backend=eager unless stated. "
+             f"Load average (1 min) before / after: {load_before} / {_loadavg()} (other jobs on the machine "
+             "slow 2-thread runs down a lot: compare with a quiet machine).")
+    write_results(out_dir, "render",
+                  "Renderer: soft silhouettes (forward+backward), SDF silhouette, exact masks",
                   rows, notes)
     return rows
+
+
+def timeit(fn, repeat: int = 7, warmup: int = 1) -> tuple[float, float]:
+    """(median, best) wall time of ``fn`` over ``repeat`` runs, in seconds (other jobs on a shared machine
+    only ever add time, so the best is the stable statistic there)."""
+    import statistics
+    import time
+
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), min(times)
+
+
+def _loadavg() -> str:
+    try:
+        return Path("/proc/loadavg").read_text().split()[0]
+    except OSError:
+        return "?"
 
 
 class _Meshes(dict):

@@ -115,13 +115,16 @@ def register(app: typer.Typer) -> None:
         normalize: Annotated[bool, typer.Option("--normalize/--no-normalize",
                                                 help="center the bounding box and scale its longest side "
                                                      "to 2 (the evaluation protocol)")] = True,
-        views: Annotated[int | None, typer.Option(help="K protocol input views: FOV 40, distance 3.2, "
-                                                       "elevation 25, azimuths 30 + k 360/K [default: 4]")] = None,
+        views: Annotated[int | None, typer.Option(
+            help="K protocol input views: FOV 40, distance 3.2, elevation 25, azimuths 30 + k 360/K "
+                 "[default: 4]")] = None,
         cameras: Annotated[Path | None, typer.Option(help="cameras.json (or a folder holding one) to render "
                                                           "instead of the protocol views")] = None,
-        masks: Annotated[Path | None, typer.Option(help="a mask set folder: render in its cameras and also "
-                                                        "write overlays with the IoU against its masks")] = None,
-        size: Annotated[int | None, typer.Option(help="image size in pixels for --views [default: 256]")] = None,
+        masks: Annotated[Path | None, typer.Option(
+            help="a mask set folder: render in its cameras and also write overlays with the IoU against "
+                 "its masks")] = None,
+        size: Annotated[int | None, typer.Option(
+            help="image size in pixels for --views [default: 256]")] = None,
         resolution: Annotated[int, typer.Option(help="marching-cubes samples along the longest side "
                                                      "(SDF generators)")] = 128,
         preview_views: Annotated[bool, typer.Option("--previews/--no-previews",
@@ -133,7 +136,7 @@ def register(app: typer.Typer) -> None:
         import numpy as np
 
         from ipm.io.masks import CAMERAS_FILE, save_mask_set, staged_directory, view_name
-        from ipm.render.preview import save_png, shade
+        from ipm.render.preview import save_png, shade_fragments
         from ipm.render.raster import rasterize
 
         if up.lower() not in ("y", "z"):
@@ -153,7 +156,7 @@ def register(app: typer.Typer) -> None:
             fr = rasterize(mesh.verts, mesh.faces, cam, near=NEAR)
             rendered.append(fr.mask.cpu().numpy())
             if preview_views:
-                pictures.append(shade(fr.mask, fr.normal, cam))
+                pictures.append(shade_fragments(fr, cam, mesh))
         empty = [i for i, m in enumerate(rendered) if not m.any()]
         if empty:
             import logging

@@ -104,7 +104,9 @@ def const(builder, *args, like: torch.Tensor) -> torch.Tensor:
 def _plain(builder, args: tuple, dtype, device) -> torch.Tensor:
     """A cached constant as a plain tensor (not lifted): for matmuls, which take the fast path."""
     t = torch.from_numpy(_np_const(builder, args, _NP_DTYPES.get(dtype, np.float64)))
-    return t if t.dtype == dtype and t.device == torch.device(device or "cpu") else t.to(dtype=dtype, device=device)
+    if t.dtype == dtype and t.device == torch.device(device or "cpu"):
+        return t
+    return t.to(dtype=dtype, device=device)
 
 
 def _cr_basis() -> np.ndarray:

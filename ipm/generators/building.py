@@ -100,7 +100,7 @@ PRESETS: dict[str, dict[str, Value]] = {
     "panel9": {"sections": 3, "floors": 9, "windows": 5, "floor_height": 2.8, "section_width": 18.0,
                "depth": 13.0, "plinth_height": 1.0, "window_width": 1.6, "balcony_pattern": 3,
                "balcony_width": 3.2, "roof_type": 0, "roof_height": 1.0, "roof_overhang": 0.2},
-    "house2": {"sections": 1, "floors": 2, "windows": 3, "floor_height": 3.0, "section_width": 10.0,
+    "house2": {"sections": 1, "floors": 2, "windows": 4, "floor_height": 3.0, "section_width": 10.0,
                "depth": 8.0, "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2,
                "window_height": 1.4, "balcony_pattern": 0, "roof_type": 1, "roof_height": 3.5,
                "roof_overhang": 0.5, "door_width": 1.2, "door_height": 2.2, "door_depth": 0.3},
@@ -242,7 +242,8 @@ class BuildingGenerator(Generator):
         if key not in self._topologies:
             roof_f = ROOFS[roof_type][1]()
             faces = [mk.repeat_faces_np(None, 8, n_wall, 2, 4), mk.repeat_faces_np(None, 16, n_win, 4, 4),
-                     mk.repeat_faces_np(None, 12, n_bal, 2, 6), mk.repeat_faces_np(None, 8, n_door, 2, 4), roof_f]
+                     mk.repeat_faces_np(None, 12, n_bal, 2, 6), mk.repeat_faces_np(None, 8, n_door, 2, 4),
+                     roof_f]
             counts = [8 * n_wall, 16 * n_win, 12 * n_bal, 8 * n_door, int(roof_f.max()) + 1]
             self._topologies[key] = mk.Topology.build(faces, counts, list(GROUPS))
         return self._topologies[key]

@@ -31,7 +31,8 @@ def preview_camera(mesh: TriMesh, size: int = 512, azimuth: float = 30.0, elevat
     v = mesh.verts.detach().double().cpu()
     lo, hi = v.amin(0), v.amax(0)
     extent = float((hi - lo).max()) or 1.0
-    return orbit_camera(azimuth, elevation, 1.6 * extent, target=((lo + hi) / 2).tolist(), width=size, height=size)
+    return orbit_camera(azimuth, elevation, 1.6 * extent, target=((lo + hi) / 2).tolist(), width=size,
+                        height=size)
 
 
 def shade(mask: torch.Tensor, normal: torch.Tensor, camera: Camera, base: np.ndarray | None = None,
@@ -62,8 +63,14 @@ def render_preview(mesh: TriMesh, camera: Camera | None = None, *, size: int = 5
     """
     camera = camera or preview_camera(mesh, size)
     fr = rasterize(mesh.verts, mesh.faces, camera)
+    return shade_fragments(fr, camera, mesh if group_colors else None, colors)
+
+
+def shade_fragments(fr, camera: Camera, mesh: TriMesh | None = None,
+                    colors: Sequence[Sequence[float]] | None = None) -> np.ndarray:
+    """:func:`shade` rasterized fragments; with a mesh that has ``groups``, color faces by group."""
     base = None
-    if group_colors and mesh.groups is not None and mesh.n_faces:
+    if mesh is not None and mesh.groups is not None and mesh.n_faces:
         pal = np.asarray(colors if colors is not None else PALETTE, dtype=np.float64)
         g = mesh.groups.detach().cpu().numpy()[fr.face.clamp_min(0).cpu().numpy()]
         base = pal[g % len(pal)]

@@ -38,7 +38,8 @@ def _box(lo, hi, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
     lo_t = torch.as_tensor(np.asarray(lo, dtype=np.float64), dtype=dtype, device=device)
     hi_t = torch.as_tensor(np.asarray(hi, dtype=np.float64), dtype=dtype, device=device)
     if lo_t.shape != (3,) or hi_t.shape != (3,):
-        raise ValueError(f"box: expected lo and hi of shape (3,), got {tuple(lo_t.shape)} and {tuple(hi_t.shape)}")
+        raise ValueError(f"box: expected lo and hi of shape (3,), got {tuple(lo_t.shape)} and "
+                         f"{tuple(hi_t.shape)}")
     if not bool((hi_t > lo_t).all()):
         raise ValueError(f"box: expected lo < hi on every axis, got lo={lo_t.tolist()}, hi={hi_t.tolist()}")
     return lo_t, hi_t
@@ -128,8 +129,9 @@ def sdf_silhouette(f: SDF, camera: Camera, lo, hi, sigma: float | None = None, *
     over. camera: the view (its tensors may require grad). lo, hi: (3,) a box that bounds the solid.
     sigma: blur in world units (default: half a pixel's footprint at the box center, see
     :func:`default_sigma`). dtype: of the rays and points given to ``f``. min_step: smallest marching
-    step (default sigma / 2); max_steps: sphere-tracing steps per ray; refine: golden-section steps;
-    stop: a ray stops this many sigmas inside the solid. Returns (H, W) in ``dtype``.
+    step (default 2 sigma: features thinner than about a pixel may be missed); max_steps:
+    sphere-tracing steps per ray; refine: golden-section steps; stop: a ray stops this many sigmas
+    inside the solid. Returns (H, W) in ``dtype``.
     """
     if sigma is None:
         sigma = default_sigma(camera, lo, hi)
@@ -149,15 +151,15 @@ def sdf_silhouette(f: SDF, camera: Camera, lo, hi, sigma: float | None = None, *
     idx = torch.nonzero(hit).squeeze(1)
     if idx.numel() == 0:
         return out.view(H, W) + 0.0 * origin.sum()
-    ms = min_step if min_step is not None else 0.5 * sigma
+    ms = min_step if min_step is not None else 2.0 * sigma
     tb, fb, ta, tc = _trace_min(f, o_d, d_d[idx], t0[idx], t1[idx], sigma, step_scale=step_scale, min_step=ms,
                                 max_steps=max_steps, stop=stop, chunk=chunk)
     near = (fb.abs() < stop * sigma).nonzero().squeeze(1)
     if near.numel() and refine > 0:
-        tr = _golden(f, o_d, d_d[idx[near]], ta[near], tc[near], refine, chunk)
-        fr = _eval(f, o_d + tr[:, None] * d_d[idx[near]], chunk)
-        keep = fr < fb[near]
-        tb[near] = torch.where(keep, tr, tb[near])
+        with torch.no_grad():
+            tr = _golden(f, o_d, d_d[idx[near]], ta[near], tc[near], refine, chunk)
+            fr = _eval(f, o_d + tr[:, None] * d_d[idx[near]], chunk)
+            tb[near] = torch.where(fr < fb[near], tr, tb[near])
     pts = origin + tb[:, None] * dirs[idx]  # differentiable in the camera
     m = _eval(f, pts, chunk)
     return out.index_put((idx,), torch.sigmoid(-m / sigma)).view(H, W)
@@ -211,7 +213,8 @@ def sdf_depth_normals(f: SDF, camera: Camera, lo, hi, *, dtype: torch.dtype = to
         p = origin + t[idx][:, None] * d[idx]
         h = eps
         offs = torch.eye(3, dtype=dtype, device=dev) * h
-        grad = torch.stack([_eval(f, p + offs[k], chunk) - _eval(f, p - offs[k], chunk) for k in range(3)], -1)
+        grad = torch.stack([_eval(f, p + offs[k], chunk) - _eval(f, p - offs[k], chunk)
+                            for k in range(3)], -1)
         normal[idx] = grad / torch.linalg.vector_norm(grad, dim=-1, keepdim=True).clamp_min(1e-12)
     fwd = (cam.target - cam.eye)
     fwd = fwd / torch.linalg.vector_norm(fwd)

@@ -10,16 +10,17 @@ How the cost follows covered pixels rather than pixels × triangles:
 1. vertices are projected; faces with a vertex nearer than ``near`` (behind the camera) are dropped
    (no near-plane clipping: keep the camera outside the object);
 2. around each triangle only the pixels within the blur radius ``r = sqrt(sigma ln(1/eps))`` matter
-   (beyond it ``D < eps``): for every image row crossing the triangle's box, the *run* of pixels
-   within the x-extent of the triangle clipped to the band ``|y - y_row| <= r``, widened by ``r``
-   (tight for thin and slanted triangles; triangles fully outside the image have no runs);
-3. runs are cut into pieces of ``K`` pixels (``K`` chosen per call to minimize padding), so the work is
-   one dense ``(K, runs)`` evaluation whose per-run constants broadcast along ``K``: no Python loop
-   per triangle, and consecutive pixels along x make the screen distance an affine function of the
-   column (pieces running past the right image edge write to padding columns);
-4. per pair, ``log(1 - D) = -(log1p(exp(-d^2/sigma)) + [inside] d^2/sigma)``, which is
-   ``logsigmoid(-s d^2 / sigma)`` in a form that is finite for every ``d`` (the "clamp" of log(1 - D)
-   needs no constant), is accumulated per pixel with ``index_add_`` (the product is a sum of logs);
+   (beyond it ``D < eps``): for every image row, the *run* of pixel centers within distance ``r`` of
+   the triangle, computed exactly (offset edges and vertex disks); triangles fully outside the image
+   have no runs;
+3. runs are cut into pieces and grouped by length, each group padded to one size ``K``
+   (:data:`PIECE_SIZES`), so the work is a few dense ``(K, pieces)`` evaluations whose per-piece
+   constants broadcast along ``K``: no Python loop per triangle, little padding, and along a run the
+   screen distance is an affine function of the column (pieces running past the right image edge write
+   to padding columns);
+4. per pair, ``log(1 - D) = -(log(1 + exp(-d^2/sigma)) + [inside] d^2/sigma)``, which is
+   ``logsigmoid(-s d^2 / sigma)`` in a form that stays finite for every ``d`` (the safe "clamp" of
+   log(1 - D)), is accumulated per pixel with ``index_add_``: the product becomes a sum of logs;
 5. pieces are processed in chunks of at most ``chunk`` pairs to bound memory.
 
 The backward pass is written by hand (a ``torch.autograd.Function``) from the envelope identity: with
@@ -28,13 +29,20 @@ The backward pass is written by hand (a ``torch.autograd.Function``) from the en
 
 The pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
 ``torch.compile`` (needs a C++ compiler; the first call compiles for tens of seconds, later calls and
-processes reuse the cache) which fuses them into single loops, several times faster than eager.
+processes reuse the cache), which fuses each kernel into one loop. The default backend is "eager", or
+the value of the environment variable ``IPM_SOFT_BACKEND``.
+
+Fitting hard masks: where a finely tessellated mesh meets its contour many triangles contribute, so
+the 0.5 level of the soft silhouette lies a fraction of ``sqrt(sigma)`` outside the hard silhouette,
+and a fit against hard masks at a fixed large sigma comes out slightly small. Anneal sigma towards
+~0.05 px^2 at the end of a fit (tests/test_render_soft.py does) or compare soft with soft.
 """
 
 from __future__ import annotations
 
 import logging
 import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -77,76 +85,132 @@ class PixelRows:
         return self.n_rows * self.k
 
 
-def span_rows(tri_xy: torch.Tensor, pad: float, width: int, height: int) -> tuple[list[PixelRows], torch.Tensor]:
+DENSE_LINES = (8, 12, 16)  # triangles crossing at most this many image rows use a dense layout
+
+
+def _line_extents(edge: torch.Tensor, yc: torch.Tensor, pad: torch.Tensor, push: torch.Tensor):
+    """Exact x-extent, on the lines ``y = yc``, of the triangles dilated by a disk of radius ``pad``.
+
+    The boundary of a triangle dilated by a disk is made of its edges offset by ``pad`` along their
+    normals and of arcs around its vertices, so the extent on a line is the extreme of the offset edges
+    (both sides: the inner offset also lies in the dilated set) and the vertex disks that the line
+    crosses. With ``pad = 0`` this is the triangle's own span.
+
+    edge: (N, 1, 3, 7) per triangle and edge: start x, start y, dx, dy, 1/dy (0 for flat edges),
+    pad * unit normal (x, y); yc: (N, M) row centers; pad, push: 0-dim, the radius and a distance larger
+    than any coordinate. Returns (xmin, xmax), (N, M) each (xmin > xmax where the line misses)."""
+    px, py, dx, dy, inv_dy, nx, ny = edge.unbind(-1)  # (N, 1, 3)
+    y = yc[..., None]  # (N, M, 1)
+    # vertex disks
+    dv = py - y
+    h2 = pad * pad - dv * dv
+    miss = (h2 < 0).to(yc.dtype) * push
+    h = h2.clamp_min(0.0).sqrt_()
+    xmin = (px - h + miss).amin(-1)
+    xmax = (px + h - miss).amax(-1)
+    # offset edges (flat ones are covered by their end points' disks)
+    flat = (dy == 0).to(yc.dtype) * push
+    for sgn in (1.0, -1.0):
+        s = (y - (py + sgn * ny)) * inv_dy
+        miss = ((s < 0) | (s > 1)).to(yc.dtype) * push + flat
+        x = torch.addcmul(px + sgn * nx, s.clamp_(0.0, 1.0), dx)
+        xmin = torch.minimum(xmin, (x + miss).amin(-1))
+        xmax = torch.maximum(xmax, (x - miss).amax(-1))
+    return xmin, xmax
+
+
+def span_rows(tri_xy: torch.Tensor, pad: float, width: int, height: int,
+              backend: str = "eager") -> tuple[list[PixelRows], torch.Tensor]:
     """The pixel centers within ``pad`` pixels of each projected triangle, as runs along image rows.
 
-    For every image row that the triangle's box (expanded by ``pad``) crosses, the run spans the x-extent
-    of the triangle clipped to the band ``|y - y_row| <= pad``, widened by ``pad``: a superset of the
-    pixels within distance ``pad`` of the triangle. With ``pad = 0`` it is the triangle's span on that
-    row (for hard rasterization). Runs are cut into pieces grouped by padded length (PIECE_SIZES).
+    For every image row that the triangle's box (expanded by ``pad``) crosses, the run spans the pixel
+    centers within distance ``pad`` of the triangle on that row, exactly (see :func:`_line_extents`).
+    With ``pad = 0`` it is the triangle's span on that row (for hard rasterization). Runs are cut into
+    pieces grouped by padded length (PIECE_SIZES).
 
     tri_xy: (F, 3, 2) float screen coordinates. Returns ``(groups, kept)``: one :class:`PixelRows` per
     piece size, and ``kept`` (F,) bool marking the triangles with at least one piece (``tri`` in the
-    groups indexes the kept triangles).
+    groups indexes the kept triangles). backend: "eager" or "compiled" (see :func:`soft_silhouette`).
     """
     with torch.no_grad():
         t = tri_xy.detach()
         dev, dt = t.device, t.dtype
+        extents = _extents(backend)
         big = float(max(width, height) + 2) + pad
         # only guard non-finite values: clamping vertices would move edges that cross the image border
         far = 1e3 * big
+        pad_t = torch.tensor(pad, dtype=dt, device=dev)
+        push = torch.tensor(4 * far, dtype=dt, device=dev)
         t = t.nan_to_num(far, far, -far).clamp(-far, far)
         xs, ys = t[..., 0], t[..., 1]
         j0 = torch.ceil(ys.amin(1) - pad - 0.5).long().clamp_min(0)
         j1 = torch.floor(ys.amax(1) + pad - 0.5).long().clamp_max(height - 1)
         inx = (xs.amax(1) + pad >= 0.5) & (xs.amin(1) - pad <= width - 0.5)
         nlines = (j1 - j0 + 1).clamp_min(0) * inx
-        sel = torch.nonzero(nlines).squeeze(1)
         # per edge (start p, end q): its y-range, and x as p + s (q - p) with s = (y - py) / dy (stable for
         # nearly flat edges; flat edges take s = 0: their end point is the next edge's start, still seen)
-        p = t[sel]
-        q = p.roll(-1, dims=1)
-        dy = q[..., 1] - p[..., 1]
+        d = t.roll(-1, dims=1) - t
+        dx, dy = d[..., 0], d[..., 1]
         inv_dy = 1.0 / torch.where(dy == 0, torch.ones_like(dy), dy) * (dy != 0)
-        eymin = torch.minimum(p[..., 1], q[..., 1])
-        eymax = torch.maximum(p[..., 1], q[..., 1])
-        edge = torch.stack([eymin, eymax, p[..., 1], inv_dy, p[..., 0], q[..., 0] - p[..., 0]], -1)
-        nl = nlines[sel]
-        lsel = torch.repeat_interleave(torch.arange(sel.shape[0], device=dev), nl)
-        first = torch.cumsum(nl, 0) - nl
-        lj = (j0[sel] - first).index_select(0, lsel) + torch.arange(lsel.shape[0], device=dev)
-        yc = (lj.to(dt) + 0.5)[:, None]
-        eymin, eymax, py, inv_dy, px, dx = edge.index_select(0, lsel).unbind(-1)  # (L, 3) each
-        ylo = torch.maximum(eymin, yc - pad)
-        yhi = torch.minimum(eymax, yc + pad)
-        miss = (ylo > yhi).to(dt) * (4 * far)  # pushes a missed edge out of the min and the max
-        xa = torch.addcmul(px, ((ylo - py) * inv_dy).clamp_(0.0, 1.0), dx)
-        xb = torch.addcmul(px, ((yhi - py) * inv_dy).clamp_(0.0, 1.0), dx)
-        xmin = (torch.minimum(xa, xb) + miss).amin(1) - pad
-        xmax = (torch.maximum(xa, xb) - miss).amax(1) + pad
-        i0 = torch.ceil(xmin.clamp(-2.0, big) - 0.5).long().clamp_min(0)
-        i1 = torch.floor(xmax.clamp(-2.0, big) - 0.5).long().clamp_max(width - 1)
-        n = (i1 - i0 + 1).clamp_min(0)
-        kmax = PIECE_SIZES[-1]
-        per = (n + kmax - 1) // kmax
-        rline = torch.repeat_interleave(torch.arange(lsel.shape[0], device=dev), per)
-        rfirst = torch.cumsum(per, 0) - per
-        kept_sel = torch.zeros(sel.shape[0], dtype=torch.bool, device=dev)
-        kept_sel[lsel[n > 0]] = True
-        remap = torch.cumsum(kept_sel.long(), 0) - 1
-        # one gather for the per-line values each piece needs
-        line = torch.stack([remap.index_select(0, lsel), lj, i0 - rfirst * kmax, i1 + 1], 1).index_select(0, rline)
-        line[:, 2] += torch.arange(rline.shape[0], device=dev) * kmax  # first column of the piece
-        line[:, 3] = (line[:, 3] - line[:, 2]).clamp_max(kmax)  # its length
+        scale = pad / torch.linalg.vector_norm(d, dim=-1).clamp_min(1e-30)
+        edge = torch.stack([xs, ys, dx, dy, inv_dy, dy * scale, -dx * scale], -1)[:, None]  # (F, 1, 3, 7)
+        lines = []  # (triangle, row, first column, last column + 1) per line, (L,) each
+        # small triangles: dense (F1, M) layouts, no per-line gathers
+        lo = 0
+        for m_lines in DENSE_LINES:
+            small = torch.nonzero((nlines > lo) & (nlines <= m_lines)).squeeze(1)
+            lo = m_lines
+            if small.numel():
+                m = torch.arange(m_lines, device=dev)
+                rows = j0[small, None] + m  # (F1, M)
+                xmin, xmax = extents(edge[small], rows.to(dt) + 0.5, pad_t, push)
+                ok = (m < nlines[small, None])
+                lines.append(_runs(small[:, None].expand_as(rows), rows, xmin, xmax, ok, width, big))
+        large = torch.nonzero(nlines > DENSE_LINES[-1]).squeeze(1)
+        if large.numel():
+            nl = nlines[large]
+            lsel = torch.repeat_interleave(torch.arange(large.shape[0], device=dev), nl)
+            first = torch.cumsum(nl, 0) - nl
+            lj = (j0[large] - first).index_select(0, lsel) + torch.arange(lsel.shape[0], device=dev)
+            yc = (lj.to(dt) + 0.5)[:, None]
+            xmin, xmax = extents(edge[large].index_select(0, lsel), yc, pad_t, push)
+            tri_l = large.index_select(0, lsel)[:, None]
+            lines.append(_runs(tri_l, lj[:, None], xmin, xmax, None, width, big))
+        line = torch.cat(lines, 1) if lines else torch.zeros(4, 0, dtype=torch.long, device=dev)
         kept = torch.zeros(t.shape[0], dtype=torch.bool, device=dev)
-        kept[sel[kept_sel]] = True
-        cls = torch.bucketize(line[:, 3].contiguous(), torch.tensor(PIECE_SIZES, device=dev))  # smallest size that holds it
+        kept[line[0]] = True
+        remap = torch.cumsum(kept.long(), 0) - 1
+        line[0] = remap[line[0]]
+        # runs longer than the largest piece are cut (rare: big triangles)
+        kmax = PIECE_SIZES[-1]
+        n = line[3] - line[2]
+        long_ = n > kmax
+        if bool(long_.any()):
+            lng = line[:, long_]
+            per = (lng[3] - lng[2] + kmax - 1) // kmax
+            r = torch.repeat_interleave(torch.arange(lng.shape[1], device=dev), per)
+            piece = torch.arange(r.shape[0], device=dev) - (torch.cumsum(per, 0) - per)[r]
+            lng = lng[:, r]
+            lng[2] += piece * kmax
+            line = torch.cat([line[:, ~long_], lng], 1)
+        line[3] = (line[3] - line[2]).clamp_max(kmax)  # piece length
+        cls = torch.bucketize(line[3], torch.tensor(PIECE_SIZES, device=dev))  # smallest size that holds it
         groups = []
         for (c0, c1), k in _merged_classes(cls):
             pick = torch.nonzero((cls >= c0) & (cls <= c1)).squeeze(1)
-            g = line.index_select(0, pick).T.contiguous()
+            g = line.index_select(1, pick)
             groups.append(PixelRows(g[0], g[1], g[2], g[3], int(k)))
     return groups, kept
+
+
+def _runs(tri, rows, xmin, xmax, ok, width: int, big: float) -> torch.Tensor:
+    """(4, L) triangle, row, first column, end column of the non-empty runs among (N, M) candidates."""
+    i0 = torch.ceil(xmin.clamp(-2.0, big) - 0.5).long().clamp_min(0)
+    i1 = torch.floor(xmax.clamp(-2.0, big) - 0.5).long().clamp_max(width - 1)
+    keep = i1 >= i0 if ok is None else (i1 >= i0) & ok
+    idx = torch.nonzero(keep.view(-1)).squeeze(1)
+    return torch.stack([tri.expand_as(i0).reshape(-1), rows.expand_as(i0).reshape(-1), i0.view(-1),
+                        i1.view(-1) + 1]).index_select(1, idx)
 
 
 def _merged_classes(cls: torch.Tensor) -> list[tuple]:
@@ -220,9 +284,9 @@ def _pick(a: torch.Tensor, b: torch.Tensor, m: torch.Tensor) -> torch.Tensor:
 
 def _forward_kernel(c, base, kcol, kidx, inv_sigma, need_grad: bool):
     """Pairs of one chunk of pieces. c: (24, R) from :func:`_constants`; base: (R,) flat index of each
-    piece's first pixel; kcol, kidx: (K, 1) 0..K-1 as float and int64. Returns the flat pixel index (K, R), log(1 - D) (K, R) and, when
-    ``need_grad``, what the backward pass needs: u = exp(-d^2/sigma), inside (0/1), the nearest edge
-    (0/1/2), and its t, wx, wy, (K, R) each."""
+    piece's first pixel; kcol, kidx: (K, 1) 0..K-1 as float and int64. Returns the flat pixel index
+    (K, R), log(1 - D) (K, R) and, when ``need_grad``, what the backward pass needs: u = exp(-d^2/sigma),
+    code = nearest edge (0/1/2) + 3 if inside, and the nearest edge's t, wx, wy, (K, R) each."""
     c = c[:, None, :]  # (24, 1, R): rows broadcast over the K pixels of each piece
     d0, t0, x0, y0 = _edge_eval(c[0:8], kcol)
     d1, t1, x1, y1 = _edge_eval(c[8:16], kcol)
@@ -268,11 +332,19 @@ def _backward_kernel(gS: torch.Tensor, base: torch.Tensor, kidx: torch.Tensor, u
 
 
 _KERNELS: dict[str, tuple[Callable, Callable]] = {"eager": (_forward_kernel, _backward_kernel)}
+_EXTENTS: dict[str, Callable] = {"eager": _line_extents}
+
+
+def _extents(backend: str) -> Callable:
+    if backend not in _EXTENTS:
+        _EXTENTS[backend] = torch.compile(_line_extents, dynamic=True)
+    return _EXTENTS[backend]
+
+
+BACKENDS = ("eager", "compiled")
 
 
 def _kernels(backend: str) -> tuple[Callable, Callable]:
-    if backend not in ("eager", "compiled"):
-        raise ValueError(f"backend: expected 'eager' or 'compiled', got {backend!r}")
     if backend not in _KERNELS:
         _KERNELS[backend] = (torch.compile(_forward_kernel, dynamic=True),
                              torch.compile(_backward_kernel, dynamic=True))
@@ -359,7 +431,7 @@ def visible_triangles(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, 
 
 def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, sigma: float = 1.0, *,
                     eps: float = 1e-6, near: float = 1e-3, chunk: int = 1 << 18,
-                    backend: str = "eager") -> torch.Tensor:
+                    backend: str | None = None) -> torch.Tensor:
     """Soft silhouette (H, W) in [0, 1] of a triangle mesh (SoftRas; see the module docstring).
 
     verts: (V, 3) float32 or float64 (gradients flow to it and to the camera's tensors);
@@ -367,17 +439,21 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
     sigma: blur in squared pixels (at distance ``sqrt(sigma)`` px outside a triangle, D = sigmoid(-1));
     eps: pairs with ``D < eps`` are skipped (the dense formula differs by about eps per pixel at most);
     near: faces with a vertex nearer than this (world units along the view axis) are dropped;
-    chunk: pairs evaluated at once (bounds memory); backend: "eager" or "compiled" (torch.compile).
+    chunk: pairs evaluated at once (bounds memory); backend: "eager" or "compiled" (torch.compile),
+    default ``$IPM_SOFT_BACKEND`` or "eager".
     Returns a tensor with the dtype and device of ``verts``.
     """
     check_mesh_tensors(verts, faces)
+    backend = backend or os.environ.get("IPM_SOFT_BACKEND", "eager")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {', '.join(BACKENDS)}, got {backend!r}")
     if not sigma > 0:
         raise ValueError(f"sigma: expected a positive blur (squared pixels), got {sigma}")
     if not 0 < eps < 0.5:
         raise ValueError(f"eps: expected a cutoff in (0, 0.5), got {eps}")
     W, H = int(camera.width), int(camera.height)
     tri, _, _ = visible_triangles(verts, faces, camera, near)
-    groups, kept = span_rows(tri, blur_radius(sigma, eps), W, H)
+    groups, kept = span_rows(tri, blur_radius(sigma, eps), W, H, backend)
     if not groups:
         return verts.sum() * 0 + torch.zeros(H, W, dtype=verts.dtype, device=verts.device)
     S = _SoftLogSum.apply(tri[kept], groups, W, H, float(sigma), int(chunk), backend)
