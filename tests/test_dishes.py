@@ -8,6 +8,7 @@ import igl
 import numpy as np
 import pytest
 import torch
+from torch.func import jacfwd
 import trimesh
 
 from ipm.generators import get_generator
@@ -223,3 +224,16 @@ def test_handle_parameters_move_only_the_handle():
         if n.startswith("handle_"):
             assert torch.count_nonzero(J[:n_body, :, i]) == 0, n
             assert torch.count_nonzero(J[n_body:, :, i]) > 0, n
+
+
+@pytest.mark.parametrize("preset, overrides", [("mug", {}), ("pitcher", {}), ("bowl", {}),
+                                               ("mug", {"spout": 0.15, "handle_azimuth": 20.0}),
+                                               ("mug", {"has_handle": 0})])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_structured_jacobian_equals_jacfwd_of_the_mesh(preset, overrides, dtype):
+    theta, discrete = GEN.split(GEN.values(preset, overrides), dtype)
+    J = GEN.jacobian(theta, discrete, LOW)
+    ref = jacfwd(lambda t: GEN.mesh(t, discrete, LOW).verts.reshape(-1))(theta)
+    assert J.dtype == dtype and J.shape == ref.shape
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    assert torch.allclose(J, ref, rtol=tol, atol=tol * float(ref.abs().max()))

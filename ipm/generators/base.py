@@ -19,15 +19,22 @@ from ipm.params import ParamSpec, Value
 from ipm.types import TriMesh
 
 GENERATORS: dict[str, Callable[[], Generator]] = {}
+# readers of generator files, by the file's ``"generator"`` field (SDF tree files may omit it)
+FILE_LOADERS: dict[str, Callable[[str], Generator]] = {}
 
 
-def register_generator(name: str):
-    """Class or factory decorator: make ``name`` available to ``get_generator`` and the CLI."""
+def register_generator(name: str, *, from_file: Callable[[str], Generator] | None = None):
+    """Class or factory decorator: make ``name`` available to ``get_generator`` and the CLI.
+
+    from_file: reads a JSON file whose ``"generator"`` field is ``name`` (a fitted or converted
+    shape, a tree), so that ``get_generator(path)`` and ``ipm generate path`` load it."""
 
     def deco(factory):
         if name in GENERATORS:
             raise ValueError(f"generator {name!r} is registered twice")
         GENERATORS[name] = factory
+        if from_file is not None:
+            FILE_LOADERS[name] = from_file
         return factory
 
     return deco
@@ -92,11 +99,36 @@ def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
     from ipm.generators.sdftree import SdfTreeGenerator, tree_presets
 
     if name.endswith(".json") or Path(name).is_file():
-        return SdfTreeGenerator.from_file(name)
+        kind = _declared_generator(name)
+        if kind is None or kind == "sdftree":
+            return SdfTreeGenerator.from_file(name)
+        if kind not in FILE_LOADERS:
+            raise ValueError(f"{name}: declares generator {kind!r}, which has no file format; files can "
+                             f"hold: sdftree, {', '.join(sorted(FILE_LOADERS))}")
+        return FILE_LOADERS[kind](name)
     if name in tree_presets():
         return SdfTreeGenerator.from_preset(name)
+    from ipm.generators.meshtree import TREE_PRESETS, MeshTreeGenerator
+
+    if name in TREE_PRESETS:
+        return MeshTreeGenerator.from_preset(name)
     raise ValueError(f"unknown generator {name!r}; registered: {', '.join(sorted(GENERATORS))}; "
-                     f"tree presets: {', '.join(sorted(tree_presets()))}; or pass a tree file (.json)")
+                     f"tree presets: {', '.join(sorted(tree_presets()))}; mesh tree presets: "
+                     f"{', '.join(sorted(TREE_PRESETS))}; or pass a generator file (.json)")
+
+
+def _declared_generator(path: str) -> str | None:
+    """The ``"generator"`` field of a JSON file (None if absent or unreadable: the SDF tree reader
+    then reports the problem)."""
+    import json
+    from pathlib import Path
+
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return None
+    kind = data.get("generator") if isinstance(data, dict) else None
+    return kind if isinstance(kind, str) else None
 
 
 _LOADED = False

@@ -306,16 +306,22 @@ class DishesGenerator(Generator):
         P, S = st["r"].shape[0], L.radial
         c, s = mk.angles(S, theta)
         Jr, Jy, Jq, Jw = (J_st[k][..., :nb] for k in ("r", "y", "q", "w"))
-        w, q = st["w"][None, :, None], st["q"][:, None, None]
-        J_rr = Jr[:, None, :] + w * Jq[:, None, :] + q * Jw[None, :, :]                   # (P, S, nb)
-        c, s = c[None, :, None], s[None, :, None]
-        ring = torch.stack([J_rr * c, Jy[:, None, :].expand(P, S, nb), -(J_rr * s)], 2)
-        zero = theta.new_zeros(1, nb)
-        pole_b = torch.cat([zero, J_st["y_bottom"][:, :nb], zero])
-        pole_t = torch.cat([zero, J_st["y_top"][:, :nb], zero])
         n_body = 3 * (P * S + 2)
-        J = theta.new_zeros(n_body + (J_st["handle"].numel() // n if has_handle else 0), n)
-        J[:n_body, :nb] = torch.cat([pole_b, ring.reshape(-1, nb), pole_t])
+        n_rows = n_body + (J_st["handle"].numel() // n if has_handle else 0)
+        # written in place: the (3V, n) result is tens of MB for fine meshes, and every extra pass over
+        # it costs as much as a generation
+        J = theta.new_empty(n_rows, n)
+        J[:n_body, nb:] = 0.0  # the handle's parameters never move the body
+        body = J[3:n_body - 3].view(P, S, 3, n)[..., :nb]
+        J_rr = torch.addcmul(Jr[:, None, :], st["q"][:, None, None], Jw[None, :, :])  # (P, S, nb)
+        if bool((st["w"] != 0).any()):  # spout: the bulge factor varies with the angle
+            J_rr.addcmul_(st["w"][None, :, None], Jq[:, None, :])
+        torch.mul(J_rr, c[None, :, None], out=body[:, :, 0])
+        torch.mul(J_rr, s[None, :, None], out=body[:, :, 2]).neg_()
+        body[:, :, 1] = Jy[:, None, :]
+        for row, k in ((0, "y_bottom"), (n_body - 3, "y_top")):
+            J[row:row + 3, :nb] = 0.0
+            J[row + 1, :nb] = J_st[k][0, :nb]
         if has_handle:
             J[n_body:] = J_st["handle"].reshape(-1, n)
         return J

@@ -943,7 +943,7 @@ VALUE_PRESETS: dict[str, dict[str, dict[str, Value]]] = {
 }
 
 
-@register_generator("meshtree")
+@register_generator("meshtree", from_file=MeshTreeGenerator.from_file)
 def _meshtree() -> MeshTreeGenerator:
     """``meshtree`` alone is the table; other trees: :meth:`MeshTreeGenerator.from_preset` / ``from_file``."""
     return MeshTreeGenerator.from_preset("table")
