@@ -46,7 +46,7 @@ def write_results(out_dir: Path, name: str, title: str, rows: list[dict], notes:
     from ipm.io.atomic import write_text
 
     out_dir.mkdir(parents=True, exist_ok=True)
-    meta = {"machine": machine(), "date": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    meta = {"machine": machine(), "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
             "command": COMMAND}
     write_text(out_dir / f"{name}.json", json.dumps({"meta": meta, "rows": rows}, indent=2) + "\n")
     cols = list(rows[0]) if rows else []

@@ -175,7 +175,8 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     out = {
         "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
         "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),
-        "scores": scores, "params": result.params, "pose": prob.pose_json(x, best["discrete"]), "discrete": best["discrete"],
+        "scores": scores, "params": result.params, "pose": prob.pose_json(x, best["discrete"]),
+        "discrete": best["discrete"],
         "files": files,
         "versions": {"ipm": ipm.__version__, "torch": torch.__version__, "numpy": np.__version__},
     }

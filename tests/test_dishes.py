@@ -8,8 +8,8 @@ import igl
 import numpy as np
 import pytest
 import torch
-from torch.func import jacfwd
 import trimesh
+from torch.func import jacfwd
 
 from ipm.generators import get_generator
 from ipm.generators.dishes import LODS, DishesGenerator, DishLod, resolve_lod

@@ -56,7 +56,7 @@ def register(app: typer.Typer) -> None:
         readme = "\n".join([
             f"# {exp.name}", "",
             f"Command: `ipm bench {experiment}{' -o ' + str(output) if output else ''}`  ",
-            f"Date: {dt.datetime.now(dt.timezone.utc).isoformat(timespec='seconds')}  ",
+            f"Date: {dt.datetime.now(dt.UTC).isoformat(timespec='seconds')}  ",
             f"Machine: {platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores  ",
             f"Versions: ipm {ipm.__version__}, torch {torch.__version__}, Python {platform.python_version()}", "",
             f"Protocol: DESIGN.md (inputs {exp.size} px, 16 held-out views at {exp.heldout_size} px, "

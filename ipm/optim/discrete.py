@@ -128,8 +128,11 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
         return _from_genome(space, g, pose0)
 
     ev.phase = "memetic:init"
-    # the best start, then the presets (diverse discrete values), then random individuals
-    candidates = [space.starts[0]] + list(space.presets)
+    # the kept starts (the best poses of the grid: a symmetric body seen from few views often leaves
+    # several poses close, and the right one only wins after its shape is refined), then the presets
+    # (diverse discrete values), then random individuals
+    n_starts = max(1, s.population // 2)
+    candidates = list(space.starts[:n_starts]) + list(space.presets)
     while len(candidates) < s.population:
         candidates.append(random_individual())
     tried: set[tuple] = set()
@@ -153,8 +156,8 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
         return out
 
     try:
-        for x, d in candidates[: s.population]:
-            xr, loss = refine(best_pose(ev, space, x, d), d, s.refine_steps)
+        for i, (x, d) in enumerate(candidates[: s.population]):
+            xr, loss = refine(x if i < n_starts else best_pose(ev, space, x, d), d, s.refine_steps)
             pop.append((xr, d, loss))
         best = min(p[2] for p in pop)
         stall, generation = 0, 0

@@ -112,6 +112,12 @@ class Evaluator:
             self.progress(self)
         return loss, g
 
+    def forget_best(self) -> None:
+        """Start the best-point records afresh (the objective changed, e.g. a finer blur: losses from
+        before are not comparable with later ones)."""
+        self.best = Best()
+        self.best_by_discrete = {}
+
     def leaders(self, k: int) -> list[Best]:
         """The best point of each of the ``k`` best discrete combinations."""
         return sorted(self.best_by_discrete.values(), key=lambda b: b.loss)[:k]

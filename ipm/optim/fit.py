@@ -34,6 +34,10 @@ log = logging.getLogger(__name__)
 
 T_RANGE = 1.5          # translation in normalized units: [-1.5, 1.5]
 LOG2S_RANGE = 2.0      # uniform scale in [1/4, 4]
+# yaw in [-360, 360] degrees: starts are wrapped into [-180, 180), so a refinement can turn either way
+# by half a turn without meeting the bound
+YAW_RANGE = 360.0
+POLISH_SIGMA_FACTOR = 0.15  # blur of the final refinement, relative to the search's
 ELEV = (-10.0, 80.0)   # camera fit: elevation in degrees
 DIST = (1.5, 10.0)     # camera fit: distance from the target point
 FOV = (10.0, 90.0)     # camera fit: vertical field of view in degrees
@@ -153,6 +157,10 @@ class Problem:
     def __init__(self, gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, dtype=torch.float32):
         settings.check()
         self.gen, self.target, self.s = gen, target, settings
+        # the blur of the soft silhouettes relative to ``settings.sigma``; the polish lowers it, since
+        # with a wide blur the 0.5 level of a soft silhouette lies outside the hard one (thin parts
+        # such as handles come out too thin against hard masks)
+        self.sigma_factor = 1.0
         self.dtype = dtype
         self.device = target.masks.device if isinstance(target, MaskTarget) else target.mesh.verts.device
         self.start = gen.values(settings.preset, settings.fix)
@@ -199,7 +207,8 @@ class Problem:
     def x0(self, yaw: float = 0.0, scale: float = 1.0, t=(0.0, 0.0, 0.0), camera=None,
            theta: torch.Tensor | None = None) -> torch.Tensor:
         u = self.encode_params(self.theta0 if theta is None else theta)
-        pose = torch.tensor([(v / T_RANGE + 1) / 2 for v in t] + [(yaw / 180.0 + 1) / 2,
+        yaw = (yaw + 180.0) % 360.0 - 180.0
+        pose = torch.tensor([(v / T_RANGE + 1) / 2 for v in t] + [(yaw / YAW_RANGE + 1) / 2,
                             (math.log2(scale) / LOG2S_RANGE + 1) / 2], dtype=torch.float64)
         parts = [u, pose.clamp(0, 1)]
         if self.cam_fit:
@@ -216,7 +225,7 @@ class Problem:
         theta = theta.index_put((torch.as_tensor(self.free, dtype=torch.long),), lo + u * (hi - lo))
         p = x[self.n:self.n + 5]
         t = (p[:3] * 2 - 1) * T_RANGE
-        yaw = (p[3] * 2 - 1) * 180.0
+        yaw = (p[3] * 2 - 1) * YAW_RANGE
         scale = torch.pow(2.0, (p[4] * 2 - 1) * LOG2S_RANGE)
         cam = None
         if self.cam_fit:
@@ -308,18 +317,18 @@ class Problem:
     def render_soft(self, x: torch.Tensor, discrete: dict) -> torch.Tensor:
         """Soft silhouettes ``(K, H, W)`` of the posed shape in every view."""
         cams = self.cameras(x)
-        sig = self.s.sigma or None
+        k = self.sigma_factor
         if self.gen.kind == "mesh":
             from ipm.render.soft import soft_silhouette
 
             m = self.mesh_world(x, discrete)
-            kw = {} if sig is None else {"sigma": sig}
-            return torch.stack([soft_silhouette(m.verts, m.faces, c.to(self.dtype), **kw) for c in cams])
-        from ipm.render.sdf_silhouette import sdf_silhouette
+            sig = (self.s.sigma or 1.0) * k  # 1 px^2: the renderer's default
+            return torch.stack([soft_silhouette(m.verts, m.faces, c.to(self.dtype), sigma=sig) for c in cams])
+        from ipm.render.sdf_silhouette import default_sigma, sdf_silhouette
 
         f, lo, hi = self.sdf_world(x, discrete)
-        kw = {} if sig is None else {"sigma": sig}
-        return torch.stack([sdf_silhouette(f, c.to(self.dtype), lo, hi, **kw) for c in cams])
+        return torch.stack([sdf_silhouette(f, c.to(self.dtype), lo, hi,
+                                           sigma=(self.s.sigma or default_sigma(c, lo, hi)) * k) for c in cams])
 
     def objective(self, x: torch.Tensor, discrete: dict, need_grad: bool):
         x = x.detach().clone().requires_grad_(need_grad)
@@ -445,7 +454,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
             raise BudgetExhausted
         return G.refine(E, x, d, min(steps, ev.remaining), settings.local, settings.lr, mask=prob.pose_mask)
 
-    polish = int(settings.budget * settings.polish) if settings.discrete != "none" else 0
+    polish = int(settings.budget * settings.polish)
     ev.budget = max(ev.count + 1, settings.budget - polish)
     strategy = D.STRATEGIES[settings.discrete]
     if settings.discrete == "none" or not space.discrete:
@@ -458,6 +467,9 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     # Polish: the two best discrete candidates share what is left (close competitors are often only
     # separated after longer refinement), then the best of all gets the rest.
     leaders = ev.leaders(2) if space.discrete else ev.leaders(1)
+    if isinstance(target, MaskTarget) and POLISH_SIGMA_FACTOR != 1.0 and ev.remaining > 0:
+        prob.sigma_factor = POLISH_SIGMA_FACTOR
+        ev.forget_best()  # the leaders are re-evaluated with the finer blur by their refinement
     for i, lead in enumerate(leaders):
         if ev.remaining <= 0:
             break
