@@ -68,17 +68,25 @@ def register(app: typer.Typer) -> None:
                        transient=True, console=__import__("rich.console").console.Console(stderr=True))
         task = bar.add_task("fit", total=budget, phase="start", loss=float("nan"), iou="-")
 
+        started = []
+
         def progress(ev):
+            if not started:  # shown from the first evaluation: bad input fails before, with one line
+                bar.start()
+                started.append(True)
             iou = ev.last.get("iou")
             bar.update(task, completed=ev.count, total=ev.budget, phase=ev.phase[:18], loss=min(ev.best.loss, 9e9),
                        iou="-" if iou is None else f"{min(iou):.3f}")
 
-        with bar:
+        try:
             result = run(gen, masks=masks, target_mesh=target_mesh, up=up, run_dir=resume or output,
                          resume=resume is not None, library=[str(p) for p in library] if library else None,
                          progress=progress, device=dev, budget=budget, seed=seed, discrete=discrete, camera=camera,
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, pose=not no_pose,
                          prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm))
+        finally:
+            if started:
+                bar.stop()
         out = {"run": result.run_dir, "loss": result.loss, "evaluations": result.evaluations,
                "wall_time_s": round(result.wall_time_s, 2), **{k: v for k, v in result.scores.items()}}
         emit(out, json_out)
