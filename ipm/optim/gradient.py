@@ -68,7 +68,7 @@ def nlopt_local(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, alg
 
     def full(z) -> torch.Tensor:
         x = x0.clone()
-        x[idx] = torch.as_tensor(z, dtype=torch.float64)
+        x[idx] = torch.tensor(z, dtype=torch.float64)
         return x
 
     def f(z, grad):
