@@ -111,6 +111,9 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
         cfg = FitSettings(**settings)
     cfg.check()
     target = load_target(masks=masks, target_mesh=target_mesh, up=up, camera=cfg.camera, device=device)
+    from ipm.optim.fit import Problem
+
+    Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written
     sink = None
     if run_dir is not None:
         run_dir.mkdir(parents=True, exist_ok=True)

@@ -33,6 +33,9 @@ class Param:
     hi: Value
     kind: Kind = "float"
     doc: str = ""
+    # a fine-detail parameter (per-section offsets, ...): fits hold it at its starting value while they
+    # search and free it in the final refinement (coarse to fine)
+    detail: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("float", "int", "bool"):
@@ -72,8 +75,11 @@ class Param:
         return value
 
     def to_json(self) -> dict:
-        return {"name": self.name, "kind": self.kind, "default": self.default, "lo": self.lo,
-                "hi": self.hi, "doc": self.doc}
+        out = {"name": self.name, "kind": self.kind, "default": self.default, "lo": self.lo,
+               "hi": self.hi, "doc": self.doc}
+        if self.detail:
+            out["detail"] = True
+        return out
 
 
 @dataclass(frozen=True)

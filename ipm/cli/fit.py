@@ -31,6 +31,8 @@ def register(app: typer.Typer) -> None:
         nlopt_algorithm: Annotated[str, typer.Option("--nlopt-algorithm",
                                                      help="GN_CRS2_LM, GN_ESCH or GN_ISRES")] = "GN_CRS2_LM",
         fix: Annotated[list[str] | None, typer.Option(help="NAME=VALUE held fixed, repeatable")] = None,
+        range_: Annotated[list[str] | None, typer.Option(
+            "--range", help="NAME=LO:HI search a discrete parameter only in [LO, HI], repeatable")] = None,
         no_pose: Annotated[bool, typer.Option("--no-pose", help="keep the object pose fixed")] = False,
         prior: Annotated[float, typer.Option(help="weight of a pull towards the starting preset")] = 0.0,
         resume: Annotated[Path | None, typer.Option(help="continue an interrupted run folder")] = None,
@@ -60,6 +62,14 @@ def register(app: typer.Typer) -> None:
         if output is not None and output.exists() and resume is None and any(output.iterdir()):
             raise UsageError(f"run folder {output} exists and is not empty; choose a new folder or --resume it")
         fixed = dict(parse_assignment(s) for s in fix or [])
+        ranges = {}
+        for item in range_ or []:
+            name, _, span = item.partition("=")
+            lo, _, hi = span.partition(":")
+            try:
+                ranges[name.strip()] = [int(lo), int(hi)]
+            except ValueError:
+                raise UsageError(f"--range: expected NAME=LO:HI with integers, got {item!r}") from None
         dev = resolve_device(device)
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -82,7 +92,8 @@ def register(app: typer.Typer) -> None:
             result = run(gen, masks=masks, target_mesh=target_mesh, up=up, run_dir=resume or output,
                          resume=resume is not None, library=[str(p) for p in library] if library else None,
                          progress=progress, device=dev, budget=budget, seed=seed, discrete=discrete, camera=camera,
-                         loss=loss, local=local, lr=lr, preset=preset, fix=fixed, pose=not no_pose,
+                         loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,
+                         pose=not no_pose,
                          prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm))
         finally:
             if started:

@@ -112,8 +112,8 @@ def resolve_lod(lod: DishLod | Mapping | str | None) -> DishLod:
 # Parameters
 # ----------------------------------------------------------------------------------------------
 
-def _f(name, default, lo, hi, doc=""):
-    return Param(name, default, lo, hi, "float", doc)
+def _f(name, default, lo, hi, doc="", detail=False):
+    return Param(name, default, lo, hi, "float", doc, detail)
 
 
 _OUT = (0.55, 0.9, 1.0, 0.9, 0.55)
@@ -141,18 +141,20 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
         _f("handle_embed", 0.5, 0.0, 1.0, "handle ends' depth into the wall (fraction of its thickness)"),
         _f("handle_azimuth", 0.0, -180.0, 180.0, "direction of the handle (degrees from +X)"),
     ]
-    ps += [_f(f"handle_out_{i + 1}", _OUT[i], 0.0, 1.5, f"outward offset of handle point {i + 1} (x reach)")
+    ps += [_f(f"handle_out_{i + 1}", _OUT[i], 0.0, 1.5, f"outward offset of handle point {i + 1} (x reach)",
+              detail=True)
            for i in range(5)]
-    ps += [_f(f"handle_lift_{i + 1}", _LIFT[i], -0.5, 0.5, f"lift of handle point {i + 1} (x span)")
+    ps += [_f(f"handle_lift_{i + 1}", _LIFT[i], -0.5, 0.5, f"lift of handle point {i + 1} (x span)", detail=True)
            for i in range(5)]
     ps += [
         _f("handle_width", 0.06, 0.005, 0.4, "handle section half-width across its plane"),
         _f("handle_thickness", 0.03, 0.003, 0.3, "handle section half-thickness in its plane"),
         _f("handle_taper", 0.0, -0.6, 0.6, "section scale 1 - taper at the top, 1 + taper at the bottom"),
     ]
-    ps += [_f(f"handle_widen_{i}", 0.0, -0.2, 0.2, f"half-width offset at handle section {i}")
+    ps += [_f(f"handle_widen_{i}", 0.0, -0.2, 0.2, f"half-width offset at handle section {i}", detail=True)
            for i in range(N_HANDLE)]
-    ps += [_f(f"handle_thicken_{i}", 0.0, -0.1, 0.1, f"half-thickness offset at handle section {i}")
+    ps += [_f(f"handle_thicken_{i}", 0.0, -0.1, 0.1, f"half-thickness offset at handle section {i}",
+              detail=True)
            for i in range(N_HANDLE)]
     ps.append(Param("has_handle", 0, 0, 1, "bool", "1: add a handle"))
     return ParamSpec(tuple(ps))
