@@ -39,3 +39,19 @@ def test_teacup_start_recovers_a_mug_from_two_views():
             for c in heldout_views(size)[::2]]
     assert min(seen) >= 0.98, seen
     assert np.mean(held) >= 0.95, held
+
+
+def test_unknown_camera_single_view(tmp_path):
+    """One view of a cup at an elevation and FOV the fit is not told (no cameras.json): ``camera="fit"``
+    recovers elevation, distance and FOV with the shape and reaches exact mask IoU >= 0.97."""
+    import ipm
+    from ipm.io.masks import save_mask_set
+    from ipm.render.camera import orbit_camera
+
+    target = normalized_mesh("dishes", "mug", {"height": 0.9, "handle_reach": 0.35})
+    cam = orbit_camera(60.0, 38.0, 3.0, fov_deg=50.0, width=96, height=96)
+    save_mask_set(tmp_path / "masks", [rasterize_mesh(target, cam).mask], [cam])
+    (tmp_path / "masks" / "cameras.json").unlink()
+    res = ipm.fit("dishes", masks=tmp_path / "masks", camera="fit", preset="mug", discrete="none", budget=300,
+                  seed=0, run_dir=tmp_path / "run")
+    assert res.scores["iou_mean"] >= 0.97, res.scores
