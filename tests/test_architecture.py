@@ -12,6 +12,7 @@ LAYERS = {
     "params": 0, "types": 0,
     "sdf": 1, "generators": 2, "jacobian": 2,
     "render": 3, "losses": 4, "metrics": 4, "optim": 5,
+    "convert": 6,          # mesh -> universal representations: above generators and metrics, below the CLI
     # the edge: may import anything
     "io": 9, "viz": 9, "bench": 9, "cli": 9, "fitting": 9, "__main__": 9, "__init__": 9,
 }

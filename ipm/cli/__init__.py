@@ -12,7 +12,7 @@ import sys
 import typer
 
 # Command modules, in the order of `ipm --help`.
-COMMANDS = ["list_cmd", "generate", "jacobian", "render", "fit", "bench"]
+COMMANDS = ["list_cmd", "generate", "jacobian", "render", "fit", "convert", "bench"]
 
 app = typer.Typer(
     name="ipm",

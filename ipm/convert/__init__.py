@@ -1,0 +1,37 @@
+"""Conversions of a mesh into the universal representations: ``bsp`` (a union of convex polytopes,
+:mod:`ipm.convert.bsp`), ``perturb`` (a quadric plus perturbation functions, :mod:`ipm.convert.perturb`)
+and ``sdftree`` (the BSP fit written as an SDF node tree, :mod:`ipm.convert.sdftree`).
+
+Every converter is ``fn(mesh, *, progress=None, seed=0, **options) -> Conversion``; its result holds a
+generator, the converted values and the JSON document that ``get_generator(path)`` and
+``ipm generate path`` load back. Converters are found by name in :data:`CONVERTERS` and imported lazily.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+
+# name -> (module, function): imported on first use, so `ipm --help` stays fast
+CONVERTERS: dict[str, tuple[str, str]] = {
+    "bsp": ("ipm.convert.bsp", "fit_bsp"),
+    "perturb": ("ipm.convert.perturb", "convert_perturb"),
+    "sdftree": ("ipm.convert.sdftree", "convert_sdftree"),
+}
+
+
+def get_converter(name: str) -> Callable:
+    """The converter registered as ``name``; ``ValueError`` lists the known ones."""
+    if name not in CONVERTERS:
+        raise ValueError(f"unknown conversion target {name!r}; expected one of {', '.join(CONVERTERS)}")
+    module, fn = CONVERTERS[name]
+    return getattr(importlib.import_module(module), fn)
+
+
+def convert(mesh, to: str, **options):
+    """Convert ``mesh`` (TriMesh, trimesh or (V, F)) to the representation ``to``; see each converter
+    for ``options``. Returns a :class:`~ipm.convert.common.Conversion`."""
+    return get_converter(to)(mesh, **options)
+
+
+__all__ = ["CONVERTERS", "convert", "get_converter"]
