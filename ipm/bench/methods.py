@@ -92,3 +92,6 @@ def visual_hull(task: Task, settings: dict, budget: int, seed: int) -> Predictio
     verts = verts - h + ax[0]
     return Prediction(TriMesh(torch.as_tensor(verts, dtype=torch.float64), torch.as_tensor(faces.astype(np.int64))),
                       0, time.perf_counter() - t0, {"voxels": int(keep.sum())})
+
+
+from ipm.bench import baselines as _baselines  # noqa: E402,F401  (registers sdf-grid and mesh-deform)
