@@ -106,3 +106,18 @@ def test_bad_experiment_files(tmp_path):
     with pytest.raises(ValueError, match="not found"):
         load_experiment(tmp_path / "none.toml")
     shutil.rmtree(tmp_path)
+
+
+def test_methods_can_be_limited_to_some_targets(tmp_path):
+    from ipm.bench.config import load_experiment
+
+    exp = tmp_path / "e.toml"
+    exp.write_text('name = "e"\nviews = [1]\n[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
+                   '[[targets]]\nname = "b"\ngenerator = "dishes"\npreset = "bowl"\n'
+                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\ntargets = ["b"]\n'
+                   '[[methods]]\nname = "vh_all"\nmethod = "visual-hull"\n')
+    cells = load_experiment(exp).cells()
+    assert sorted(c.key for c in cells) == ["a|vh_all|1|0", "b|vh_all|1|0", "b|vh|1|0"]
+    exp.write_text(exp.read_text().replace('targets = ["b"]', 'targets = ["c"]'))
+    with pytest.raises(ValueError, match="unknown targets c"):
+        load_experiment(exp)

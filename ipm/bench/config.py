@@ -55,6 +55,7 @@ class MethodSpec:
     method: str
     views: tuple[int, ...] | None = None
     settings: dict = field(default_factory=dict)
+    targets: tuple[str, ...] | None = None  # None: every target
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,8 @@ class Experiment:
     def cells(self) -> list[Cell]:
         out = []
         for t, m in itertools.product(self.targets, self.methods):
+            if m.targets is not None and t.name not in m.targets:
+                continue
             for k, s in itertools.product(m.views or self.views, self.seeds):
                 out.append(Cell(t.name, m.name, int(k), int(s)))
         return out
@@ -129,8 +132,16 @@ def load_experiment(path: str | Path) -> Experiment:
         if m["method"] not in METHODS:
             raise ValueError(f"{path}: method {m['name']}: unknown method {m['method']!r}; "
                              f"known: {', '.join(sorted(METHODS))}")
-        settings = {k: v for k, v in m.items() if k not in ("name", "method", "views")}
-        methods.append(MethodSpec(m["name"], m["method"], tuple(m["views"]) if "views" in m else None, settings))
+        settings = {k: v for k, v in m.items() if k not in ("name", "method", "views", "targets")}
+        only = None
+        if "targets" in m:
+            only = tuple(str(n) for n in m["targets"])
+            missing = sorted(set(only) - {t.name for t in targets})
+            if missing:
+                raise ValueError(f"{path}: method {m['name']}: unknown targets {', '.join(missing)}; "
+                                 f"targets: {', '.join(t.name for t in targets)}")
+        methods.append(MethodSpec(m["name"], m["method"], tuple(m["views"]) if "views" in m else None, settings,
+                                  only))
     if not targets or not methods:
         raise ValueError(f"{path}: expected at least one [[targets]] and one [[methods]]")
     names = [t.name for t in targets] + [m.name for m in methods]
