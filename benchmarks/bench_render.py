@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from benchmarks.common import timings as timeit
 from benchmarks.common import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -142,21 +143,6 @@ def run(out_dir: Path) -> list[dict]:
                   rows, notes)
     return rows
 
-
-def timeit(fn, repeat: int = 7, warmup: int = 1) -> tuple[float, float]:
-    """(median, best) wall time of ``fn`` over ``repeat`` runs, in seconds (other jobs on a shared machine
-    only ever add time, so the best is the stable statistic there)."""
-    import statistics
-    import time
-
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times), min(times)
 
 
 def _loadavg() -> str:

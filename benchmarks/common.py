@@ -29,8 +29,9 @@ def machine() -> str:
             f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
 
 
-def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
-    """Median wall time of ``fn`` in seconds."""
+def timings(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> tuple[float, float]:
+    """(median, best) wall time of ``fn`` in seconds (other jobs on a shared machine only ever add
+    time, so the best is the stable statistic there)."""
     for _ in range(warmup):
         fn()
     times = []
@@ -38,7 +39,12 @@ def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
         t0 = time.perf_counter()
         fn()
         times.append(time.perf_counter() - t0)
-    return statistics.median(times)
+    return statistics.median(times), min(times)
+
+
+def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
+    """Median wall time of ``fn`` in seconds."""
+    return timings(fn, repeat, warmup)[0]
 
 
 def write_results(out_dir: Path, name: str, title: str, rows: list[dict], notes: str = "") -> None:

@@ -20,7 +20,7 @@ import time
 import numpy as np
 
 from ipm.convert.common import Conversion, Progress
-from ipm.generators.bsp import EPS, convex_vertices
+from ipm.generators.bsp import convex_cells
 
 
 def _plane_node(n: np.ndarray, d: float) -> dict:
@@ -40,21 +40,8 @@ def _chain(op: str, nodes: list[dict]) -> dict:
 def bsp_tree(planes: np.ndarray, selection: np.ndarray, extent: float, tol: float = 1e-7) -> dict | None:
     """The nested tree document ``{"tree": {...}}`` of a binary BSP: ``planes (p, 4)`` (a, d), ``selection
     (p, c)`` bool, domain box ``|x| <= extent``; None if every convex is empty."""
-    planes = np.asarray(planes, dtype=np.float64)
-    a, d = planes[:, :3], planes[:, 3]
-    n = a / np.sqrt((a * a).sum(1, keepdims=True) + EPS * EPS)
-    scale = np.linalg.norm(n, axis=1)
-    box_n = np.vstack([np.eye(3), -np.eye(3)])
     convexes, lo, hi = [], np.full(3, np.inf), np.full(3, -np.inf)
-    for j in range(selection.shape[1]):
-        idx = np.flatnonzero(selection[:, j] & (scale > 1e-3))
-        if not selection[:, j].any():
-            continue
-        N = np.vstack([n[idx] / scale[idx, None], box_n])
-        off = np.concatenate([d[idx] / scale[idx], np.full(6, extent)])
-        v = convex_vertices(N, off)
-        if v is None:
-            continue
+    for _, _, N, off, v in convex_cells(planes, selection, extent):
         lo, hi = np.minimum(lo, v.min(0)), np.maximum(hi, v.max(0))
         faces = (np.abs(v @ N.T - off) <= tol * max(1.0, extent)).sum(0) >= 3
         convexes.append(_chain("intersection", [_plane_node(N[i], off[i]) for i in np.flatnonzero(faces)]))

@@ -152,3 +152,41 @@ def _load_builtin_generators() -> None:
 def all_generators() -> dict[str, Callable[[], Generator]]:
     _load_builtin_generators()
     return dict(GENERATORS)
+
+
+class ValuesField:
+    """A field generator with stored parameter values, offering the part of :class:`ipm.sdf.nodes.Tree`'s
+    interface that fitting, rendering and the CLI use: ``sdf(theta, points)``, ``with_theta``,
+    ``with_values``, ``theta``, ``values``. Subclasses give ``_eval(theta, points)`` and ``bounds()``."""
+
+    def __init__(self, gen: Generator, values: Mapping[str, Value]):
+        self.gen = gen
+        self.spec = gen.spec
+        self._values = gen.spec.validate(values)
+
+    def theta(self, dtype=torch.float64, device=None) -> torch.Tensor:
+        """The stored continuous values ``(n,)``."""
+        return self.spec.to_vector(self._values, dtype, device)
+
+    def values(self) -> dict:
+        return dict(self._values)
+
+    def _eval(self, theta: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+        raise NotImplementedError
+
+    def sdf(self, theta: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
+        """Field ``(...)`` at ``points (..., 3)`` for ``theta (n,)`` (None: the stored values)."""
+        if theta is None:
+            theta = self.theta(points.dtype, points.device)
+        return self._eval(theta, points)
+
+    __call__ = sdf
+
+    def with_values(self, values: Mapping[str, object]):
+        return type(self)(self.gen, {**self._values, **values})
+
+    def with_theta(self, theta: torch.Tensor):
+        vals = theta.detach().cpu().double().tolist()
+        if len(vals) != self.spec.n_continuous:
+            raise ValueError(f"expected theta of length {self.spec.n_continuous}, got {len(vals)}")
+        return self.with_values(dict(zip((p.name for p in self.spec.continuous), vals)))

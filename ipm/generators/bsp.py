@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ipm.generators.base import Generator, register_generator
+from ipm.generators.base import Generator, ValuesField, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -163,6 +163,27 @@ def convex_vertices(normals: np.ndarray, offsets: np.ndarray, tol: float = 1e-9)
     return v if len(v) >= 4 else None
 
 
+def convex_cells(planes, selection, extent: float):
+    """Each non-empty convex of a binary BSP as ``(j, idx, N, off, vertices)``: its index, the indices of
+    its planes, the unit normals and offsets of its half-spaces ``N x <= off`` (the domain box
+    ``|x| <= extent`` appended) and its vertices. planes: ``(p, 4)`` (a, d); selection: ``(p, c)`` bool."""
+    planes = np.asarray(planes, dtype=np.float64)
+    sel = np.asarray(selection, dtype=bool)
+    a, d = planes[:, :3], planes[:, 3]
+    n = a / np.sqrt((a * a).sum(1, keepdims=True) + EPS * EPS)
+    scale = np.linalg.norm(n, axis=1)                # < 1 only for (near) zero a; keep n . x <= d exact
+    box_n = np.vstack([np.eye(3), -np.eye(3)])
+    for j in range(sel.shape[1]):
+        idx = np.flatnonzero(sel[:, j] & (scale > 1e-3))
+        if not sel[:, j].any():
+            continue
+        N = np.vstack([n[idx] / scale[idx, None], box_n])
+        off = np.concatenate([d[idx] / scale[idx], np.full(6, extent)])
+        v = convex_vertices(N, off)
+        if v is not None:
+            yield j, idx, N, off, v
+
+
 def polytope_mesh(planes: np.ndarray, selection: np.ndarray, extent: float, tol: float = 1e-9) -> Polytope:
     """Exact union of the convexes ``selection[:, j]`` (bool ``(p, c)``) of ``planes (p, 4)`` (a, d), each
     clipped to the domain box; a convex without a plane of its own is absent (as in the field).
@@ -171,22 +192,8 @@ def polytope_mesh(planes: np.ndarray, selection: np.ndarray, extent: float, tol:
     """
     import manifold3d as m3d
 
-    planes = np.asarray(planes, dtype=np.float64)
-    sel = np.asarray(selection, dtype=bool)
-    a, d = planes[:, :3], planes[:, 3]
-    n = a / np.sqrt((a * a).sum(1, keepdims=True) + EPS * EPS)
-    scale = np.linalg.norm(n, axis=1)                # < 1 only for (near) zero a; keep n . x <= d exact
-    box_n = np.vstack([np.eye(3), -np.eye(3)])
     parts, used_convexes, used_planes = [], [], set()
-    for j in range(sel.shape[1]):
-        idx = np.flatnonzero(sel[:, j] & (scale > 1e-3))
-        if not sel[:, j].any():
-            continue
-        N = np.vstack([n[idx] / scale[idx, None], box_n])
-        off = np.concatenate([d[idx] / scale[idx], np.full(6, extent)])
-        v = convex_vertices(N, off)
-        if v is None:
-            continue
+    for j, idx, N, off, v in convex_cells(planes, selection, extent):
         hull = m3d.Manifold.hull_points(v)
         if hull.is_empty() or hull.volume() <= tol:
             continue
@@ -209,38 +216,12 @@ def polytope_mesh(planes: np.ndarray, selection: np.ndarray, extent: float, tol:
 # The field object handed to fitting, rendering and the CLI (like ipm.sdf.nodes.Tree)
 # ----------------------------------------------------------------------------------------------
 
-class BspField:
+class BspField(ValuesField):
     """A BSP field with stored parameter values: ``sdf(theta, points)``, ``with_theta``, ``with_values``,
     ``bounds`` (the interface of :class:`ipm.sdf.nodes.Tree` that fitting and the CLI use)."""
 
-    def __init__(self, gen: BspGenerator, values: Mapping[str, Value]):
-        self.gen = gen
-        self.spec = gen.spec
-        self._values = gen.spec.validate(values)
-
-    def theta(self, dtype=torch.float64, device=None) -> torch.Tensor:
-        """The stored continuous values ``(n,)``."""
-        return self.spec.to_vector(self._values, dtype, device)
-
-    def values(self) -> dict:
-        return dict(self._values)
-
-    def sdf(self, theta: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
-        """Field ``(...)`` at ``points (..., 3)`` for ``theta (n,)`` (None: the stored values)."""
-        if theta is None:
-            theta = self.theta(points.dtype, points.device)
+    def _eval(self, theta: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         return self.gen.field(theta.to(points.dtype), points)
-
-    __call__ = sdf
-
-    def with_values(self, values: Mapping[str, object]) -> BspField:
-        return BspField(self.gen, {**self._values, **values})
-
-    def with_theta(self, theta: torch.Tensor) -> BspField:
-        vals = theta.detach().cpu().double().tolist()
-        if len(vals) != self.spec.n_continuous:
-            raise ValueError(f"expected theta of length {self.spec.n_continuous}, got {len(vals)}")
-        return self.with_values(dict(zip((p.name for p in self.spec.continuous), vals)))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The domain box ``(lo (3,), hi (3,))``: it contains every convex."""

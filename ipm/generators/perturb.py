@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ipm.generators.base import Generator, register_generator
+from ipm.generators.base import Generator, ValuesField, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -144,38 +144,12 @@ def upper(P: np.ndarray) -> np.ndarray:
     return A
 
 
-class PerturbField:
+class PerturbField(ValuesField):
     """A perturbation field with stored values: ``sdf(theta, points)``, ``with_theta``, ``with_values``,
     ``bounds`` (the interface of :class:`ipm.sdf.nodes.Tree` used by fitting and the CLI)."""
 
-    def __init__(self, gen: PerturbGenerator, values: Mapping[str, Value]):
-        self.gen = gen
-        self.spec = gen.spec
-        self._values = gen.spec.validate(values)
-
-    def theta(self, dtype=torch.float64, device=None) -> torch.Tensor:
-        """The stored continuous values ``(10 + 10 n,)``."""
-        return self.spec.to_vector(self._values, dtype, device)
-
-    def values(self) -> dict:
-        return dict(self._values)
-
-    def sdf(self, theta: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
-        """``F (...)`` at ``points (..., 3)`` for ``theta (n,)`` (None: the stored values)."""
-        if theta is None:
-            theta = self.theta(points.dtype, points.device)
+    def _eval(self, theta: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
         return field(theta, points, self.gen.n)
-
-    __call__ = sdf
-
-    def with_values(self, values: Mapping[str, object]) -> PerturbField:
-        return PerturbField(self.gen, {**self._values, **values})
-
-    def with_theta(self, theta: torch.Tensor) -> PerturbField:
-        vals = theta.detach().cpu().double().tolist()
-        if len(vals) != self.spec.n_continuous:
-            raise ValueError(f"expected theta of length {self.spec.n_continuous}, got {len(vals)}")
-        return self.with_values(dict(zip((p.name for p in self.spec.continuous), vals)))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Box ``(lo (3,), hi (3,))``: the base ellipsoid's box (if the quadric is one) grown by the boxes
