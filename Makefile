@@ -9,7 +9,7 @@ TORCH_VERSION := 2.13.0
 .DEFAULT_GOAL := help
 
 help: ## list the targets
-	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-14s\033[0m %s\n", $$1, $$2}'
+	@grep -E '^[a-zA-Z0-9_-]+:.*?## ' $(MAKEFILE_LIST) | awk 'BEGIN {FS = ":.*?## "}; {printf "  \033[36m%-16s\033[0m %s\n", $$1, $$2}'
 
 $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -32,7 +32,26 @@ lint: $(STAMP) ## ruff over the package and tests
 bench: $(STAMP) ## speed benchmarks, written under results/perf/
 	$(BIN)/python -m benchmarks.run results/perf
 
+# Bench tables: each resumes an interrupted run and rewrites its tables; FRESH=1 recomputes every cell.
+WORKERS ?= 2
+define run_bench
+	$(if $(FRESH),rm -rf results/$(2),)
+	$(BIN)/ipm bench experiments/$(1).toml -o results/$(2) --workers $(WORKERS) --resume
+endef
+
+bench-small: $(STAMP) ## the small experiment (1 real mug, seconds), results/small/
+	$(call run_bench,small,small)
+
+table1: $(STAMP) ## the Table-1 analogue on real meshes (about 1 hour on 2 cores), results/table1/
+	$(call run_bench,table1,table1)
+
+table-synthetic: $(STAMP) ## generator samples with known parameters, results/table_synthetic/
+	$(call run_bench,table_synthetic,table_synthetic)
+
+table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
+	$(BIN)/python -m benchmarks.table_convert results/table_convert
+
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test lint bench clean
+.PHONY: help install demo test lint bench bench-small table1 table-synthetic table-convert clean

@@ -17,8 +17,9 @@ SMALL = ROOT / "experiments" / "small.toml"
 SHARED = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply").resolve()
 
 
-def small_experiment(tmp_path: Path, views=(1, 2)) -> Path:
-    """A copy of experiments/small.toml in a temporary project (so relative data paths still resolve)."""
+def small_experiment(tmp_path: Path, views=(1, 2), fits: bool = True) -> Path:
+    """A copy of experiments/small.toml in a temporary project (so relative data paths still resolve);
+    ``fits=False`` drops the generator fit (only the deterministic visual hull is left)."""
     pytest.importorskip("ipm.render.raster")
     if not SHARED.is_file():
         pytest.skip(f"real data not found: {SHARED}")
@@ -26,6 +27,8 @@ def small_experiment(tmp_path: Path, views=(1, 2)) -> Path:
     (proj / "experiments").mkdir(parents=True)
     text = SMALL.read_text().replace("../shared/data/real/vessels/ocrtoc_mug.ply", str(SHARED))
     text = text.replace("views = [1, 2]", f"views = {list(views)}")
+    if not fits:
+        text = text[:text.index('[[methods]]\nname = "ipm-dishes"')]
     path = proj / "experiments" / "small.toml"
     path.write_text(text)
     return path
@@ -40,11 +43,15 @@ def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
         main(["bench", str(exp), "-o", str(out), "--json"])
     assert e.value.code == 0, capsys.readouterr().err
     rows = [json.loads(x) for x in (out / "rows.jsonl").read_text().splitlines()]
-    assert len(rows) == 2 and all(r["status"] == "ok" for r in rows), rows
+    assert len(rows) == 3 and all(r["status"] == "ok" for r in rows), rows
     vh = [r for r in rows if r["method"] == "visual-hull"]
-    assert all(0.3 < r["heldout_iou"] <= 1.0 for r in vh)
-    for name in ("table.md", "table.csv", "table.tex", "README.md"):
+    assert len(vh) == 2 and all(0.3 < r["heldout_iou"] <= 1.0 for r in vh)
+    fit = next(r for r in rows if r["method"] == "ipm-dishes")
+    assert fit["evaluations"] == 60 and 0.5 < fit["heldout_iou"] <= 1.0 and "params" not in fit
+    for name in ("table.md", "table.csv", "table.tex", "README.md", "sheet_cup_1.png"):
         assert (out / name).is_file()
+    assert len(list((out / "meshes").glob("*.ply"))) == 3
+    assert "sheet_cup_1.png" in (out / "README.md").read_text()
     # resume: nothing is recomputed (rows unchanged, no new lines)
     before = (out / "rows.jsonl").read_text()
     with pytest.raises(SystemExit) as e:
@@ -58,7 +65,7 @@ def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
         main(["bench", str(exp), "-o", str(out), "--resume", "--json"])
     assert e.value.code == 0
     rows2 = [json.loads(x) for x in (out / "rows.jsonl").read_text().splitlines()]
-    assert len(rows2) == 2 and {r["key"] for r in rows2} == {r["key"] for r in rows}
+    assert len(rows2) == 3 and {r["key"] for r in rows2} == {r["key"] for r in rows}
 
 
 def test_existing_rows_without_resume_is_an_error(tmp_path):
@@ -76,8 +83,9 @@ def test_dask_local_cluster_gives_the_same_rows(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     from ipm.bench.harness import run_experiment
 
-    exp = small_experiment(tmp_path, views=(1,))
+    exp = small_experiment(tmp_path, views=(1, 2), fits=False)  # two cells
     local = run_experiment(exp, tmp_path / "local")
+    assert len(local) == 2
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                                   dashboard_address=None) as cluster:
         remote = run_experiment(exp, tmp_path / "dask", scheduler=cluster.scheduler_address)
@@ -91,7 +99,7 @@ def test_tables_mark_the_best():
              "heldout_iou": v, "chamfer_l1": c} for m, s, v, c in
             [("a", 0, 0.9, 0.01), ("a", 1, 0.8, 0.02), ("b", 0, 0.5, 0.005)]]
     md = markdown(rows)
-    assert "**0.850 ± 0.050**" in md and "**0.005 ± 0.000**" in md
+    assert "**0.850 ± 0.050**" in md and "| **0.005** |" in md  # one seed: no spread shown
     assert "\\textbf{0.850 $\\pm$ 0.050}" in latex(rows)
 
 
@@ -121,3 +129,50 @@ def test_methods_can_be_limited_to_some_targets(tmp_path):
     exp.write_text(exp.read_text().replace('targets = ["b"]', 'targets = ["c"]'))
     with pytest.raises(ValueError, match="unknown targets c"):
         load_experiment(exp)
+
+
+def test_methods_can_have_their_own_seeds(tmp_path):
+    exp = tmp_path / "e.toml"
+    exp.write_text('name = "e"\nviews = [1]\nseeds = [0, 1, 2]\n'
+                   '[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
+                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nseeds = [0]\n'
+                   '[[methods]]\nname = "vh3"\nmethod = "visual-hull"\n')
+    cells = load_experiment(exp).cells()
+    assert sorted(c.key for c in cells) == ["a|vh3|1|0", "a|vh3|1|1", "a|vh3|1|2", "a|vh|1|0"]
+    assert "seeds" not in load_experiment(exp).method("vh").settings
+    exp.write_text(exp.read_text().replace("seeds = [0]\n", "seeds = []\n", 1).replace("seeds = [0, 1, 2]", "seeds = [0]"))
+    with pytest.raises(ValueError, match="seeds must be a non-empty list of integers"):
+        load_experiment(exp)
+
+
+def test_predictions_are_scored_after_normalization(tmp_path):
+    """The protocol scores shape, not placement: the target itself, moved and scaled, scores perfectly."""
+    import torch
+
+    from ipm.bench import harness
+    from ipm.bench.methods import METHODS, Prediction
+    from ipm.types import TriMesh
+
+    exp = tmp_path / "proj" / "experiments" / "e.toml"
+    exp.parent.mkdir(parents=True)
+    exp.write_text('name = "e"\nviews = [1]\nsize = 64\nheldout_size = 64\nsamples = 2000\niou_resolution = 24\n'
+                   '[[targets]]\nname = "mug"\ngenerator = "dishes"\npreset = "mug"\n'
+                   '[[methods]]\nname = "moved"\nmethod = "_moved_target"\n')
+
+    def moved(task, settings, budget, seed):
+        target, _, _ = harness._target_mesh(str(exp.resolve()), "mug")
+        return Prediction(TriMesh(target.verts * 1.7 + torch.tensor([0.3, -0.2, 0.5], dtype=torch.float64),
+                                  target.faces), 1, 0.0)
+
+    METHODS["_moved_target"] = moved
+    try:
+        row = harness.run_cell(str(exp.resolve()), load_experiment(exp).cells()[0], str(tmp_path / "out"))
+    finally:
+        del METHODS["_moved_target"]
+    assert row["status"] == "ok", row
+    assert row["heldout_iou"] > 0.999 and row["fscore@0.02"] == 1.0 and row["iou_3d"] > 0.99
+    saved = harness.mesh_path(tmp_path / "out", row["key"])
+    import trimesh
+
+    V = trimesh.load(saved, force="mesh", process=False).vertices
+    assert abs((V.max(0) - V.min(0)).max() - 2.0) < 1e-6 and abs(V.max(0) + V.min(0)).max() < 1e-6

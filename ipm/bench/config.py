@@ -27,6 +27,8 @@
     name = "visual-hull"
     method = "visual-hull"
     views = [2, 6, 12]                # a method may override the views it is given
+    seeds = [0]                       # ... and the seeds (a deterministic method needs one)
+    targets = ["cup_1"]               # ... and the targets it applies to
 """
 
 from __future__ import annotations
@@ -56,6 +58,7 @@ class MethodSpec:
     views: tuple[int, ...] | None = None
     settings: dict = field(default_factory=dict)
     targets: tuple[str, ...] | None = None  # None: every target
+    seeds: tuple[int, ...] | None = None    # None: the experiment's seeds (deterministic methods: one)
 
 
 @dataclass(frozen=True)
@@ -85,13 +88,14 @@ class Experiment:
     heldout_size: int = 256
     samples: int = 10_000
     iou_resolution: int = 64
+    notes: str = ""  # free text for the results README (protocol deviations, comparisons)
 
     def cells(self) -> list[Cell]:
         out = []
         for t, m in itertools.product(self.targets, self.methods):
             if m.targets is not None and t.name not in m.targets:
                 continue
-            for k, s in itertools.product(m.views or self.views, self.seeds):
+            for k, s in itertools.product(m.views or self.views, m.seeds or self.seeds):
                 out.append(Cell(t.name, m.name, int(k), int(s)))
         return out
 
@@ -132,7 +136,7 @@ def load_experiment(path: str | Path) -> Experiment:
         if m["method"] not in METHODS:
             raise ValueError(f"{path}: method {m['name']}: unknown method {m['method']!r}; "
                              f"known: {', '.join(sorted(METHODS))}")
-        settings = {k: v for k, v in m.items() if k not in ("name", "method", "views", "targets")}
+        settings = {k: v for k, v in m.items() if k not in ("name", "method", "views", "targets", "seeds")}
         only = None
         if "targets" in m:
             only = tuple(str(n) for n in m["targets"])
@@ -140,8 +144,13 @@ def load_experiment(path: str | Path) -> Experiment:
             if missing:
                 raise ValueError(f"{path}: method {m['name']}: unknown targets {', '.join(missing)}; "
                                  f"targets: {', '.join(t.name for t in targets)}")
+        seeds = None
+        if "seeds" in m:
+            if not m["seeds"] or not all(isinstance(x, int) for x in m["seeds"]):
+                raise ValueError(f"{path}: method {m['name']}: seeds must be a non-empty list of integers")
+            seeds = tuple(int(x) for x in m["seeds"])
         methods.append(MethodSpec(m["name"], m["method"], tuple(m["views"]) if "views" in m else None, settings,
-                                  only))
+                                  only, seeds))
     if not targets or not methods:
         raise ValueError(f"{path}: expected at least one [[targets]] and one [[methods]]")
     names = [t.name for t in targets] + [m.name for m in methods]
@@ -151,4 +160,5 @@ def load_experiment(path: str | Path) -> Experiment:
                       methods=tuple(methods), views=tuple(data.get("views", [1])),
                       seeds=tuple(data.get("seeds", [0])), budget=int(data.get("budget", 1000)),
                       size=int(data.get("size", 256)), heldout_size=int(data.get("heldout_size", 256)),
-                      samples=int(data.get("samples", 10_000)), iou_resolution=int(data.get("iou_resolution", 64)))
+                      samples=int(data.get("samples", 10_000)), iou_resolution=int(data.get("iou_resolution", 64)),
+                      notes=str(data.get("notes", "")).strip())

@@ -35,17 +35,12 @@ def _target_mesh(exp_path: str, name: str) -> tuple[TriMesh, dict | None, str | 
     t = exp.target(name)
     truth, gen_name = None, None
     if t.mesh is not None:
-        import trimesh
+        from ipm.io.meshes import load_mesh
 
         path = Path(t.mesh)
         path = path if path.is_absolute() else exp.root / path
-        if not path.is_file():
-            raise ValueError(f"target {name}: mesh file not found: {path}")
-        tm = trimesh.load(path, force="mesh", process=False)
-        V = np.asarray(tm.vertices, dtype=np.float64)
-        if t.up == "z":
-            V = V[:, [0, 2, 1]] * np.array([1.0, 1.0, -1.0])  # Z up -> Y up (right-handed)
-        F = np.asarray(tm.faces, dtype=np.int64)
+        m = load_mesh(path, up=t.up, normalize=False)  # ValueError names a missing or unreadable file
+        V, F = m.verts.numpy(), m.faces.numpy()
     else:
         from ipm.generators import get_generator
 
@@ -76,9 +71,21 @@ def param_error(pred: dict, truth: dict, gen_name: str) -> dict:
             "discrete_accuracy": float(np.mean(disc)) if disc else 1.0}
 
 
-def run_cell(exp_path: str, cell: Cell) -> dict:
-    """Run one cell and score it (DESIGN.md's protocol). Safe to call in a fresh process."""
+def mesh_path(out_dir: str | Path, key: str) -> Path:
+    """Where a cell's predicted mesh (normalized as the protocol scores it) is kept: ``meshes/<key>.ply``."""
+    return Path(out_dir) / "meshes" / (key.replace("|", "__") + ".ply")
+
+
+def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
+    """Run one cell and score it (DESIGN.md's protocol). Safe to call in a fresh process.
+
+    The prediction is normalized like the target (bounding-box center at the origin, longest side 2)
+    before every score, held-out silhouettes included; with ``out_dir`` it is also written to
+    :func:`mesh_path` (for the contact sheets).
+    """
     from ipm.bench.methods import METHODS, Task
+    from ipm.io.export import export_mesh
+    from ipm.io.meshes import normalize_mesh
     from ipm.metrics import mask_iou, shape_scores
     from ipm.render.camera import heldout_views, input_views
 
@@ -95,10 +102,17 @@ def run_cell(exp_path: str, cell: Cell) -> dict:
     except ValueError as e:
         row.update(status="failed", error=str(e), wall_time_s=round(time.perf_counter() - t0, 3))
         return row
+    try:
+        pred_mesh = normalize_mesh(pred.mesh)
+    except ValueError as e:
+        row.update(status="failed", error=f"prediction: {e}", wall_time_s=round(time.perf_counter() - t0, 3))
+        return row
+    if out_dir is not None:
+        export_mesh(TriMesh(pred_mesh.verts.double(), pred_mesh.faces), mesh_path(out_dir, cell.key), sidecar=False)
     held = heldout_views(exp.heldout_size)
-    p_masks, t_masks = _masks(pred.mesh, held), _masks(target, held)
+    p_masks, t_masks = _masks(pred_mesh, held), _masks(target, held)
     row["heldout_iou"] = float(np.mean([mask_iou(a, b) for a, b in zip(p_masks, t_masks)]))
-    s = shape_scores(pred.mesh, target, n=exp.samples, seed=cell.seed, resolution=exp.iou_resolution)
+    s = shape_scores(pred_mesh, target, n=exp.samples, seed=cell.seed, resolution=exp.iou_resolution)
     row.update(s.to_json())
     row.update(status="ok", evaluations=pred.evaluations, wall_time_s=round(pred.wall_time_s, 3))
     if truth is not None and "params" in pred.info and spec.settings.get("generator") == gen_name:
@@ -146,28 +160,28 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
             if progress is not None:
                 progress(row, len(rows) - len(done), len(todo))
 
-        for row in _execute(exp_path, todo, workers, scheduler):
+        for row in _execute(exp_path, todo, workers, scheduler, str(out.resolve())):
             keep(row)
     return rows
 
 
-def _execute(exp_path: str, cells: list[Cell], workers: int, scheduler: str | None):
+def _execute(exp_path: str, cells: list[Cell], workers: int, scheduler: str | None, out_dir: str):
     if scheduler is not None:
         from dask.distributed import Client, as_completed
 
         with Client(scheduler) as client:
-            futures = [client.submit(run_cell, exp_path, c, pure=False) for c in cells]
+            futures = [client.submit(run_cell, exp_path, c, out_dir, pure=False) for c in cells]
             for fut in as_completed(futures):
                 yield fut.result()
         return
     if workers <= 1:
         for c in cells:
-            yield run_cell(exp_path, c)
+            yield run_cell(exp_path, c, out_dir)
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     os.environ["IPM_BENCH_WORKER"] = "1"
     with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_cell, exp_path, c) for c in cells]
+        futures = [pool.submit(run_cell, exp_path, c, out_dir) for c in cells]
         for fut in as_completed(futures):
             yield fut.result()

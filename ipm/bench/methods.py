@@ -95,3 +95,4 @@ def visual_hull(task: Task, settings: dict, budget: int, seed: int) -> Predictio
 
 
 from ipm.bench import baselines as _baselines  # noqa: E402,F401  (registers sdf-grid and mesh-deform)
+from ipm.bench import universal as _universal  # noqa: E402,F401  (registers bsp and perturb)

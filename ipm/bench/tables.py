@@ -28,7 +28,8 @@ def aggregate(rows: list[dict]) -> dict:
 
 
 def table(rows: list[dict], metric: str = "heldout_iou") -> tuple[list[str], list[list[str]], list[list[float]]]:
-    """Rows = method × views, columns = targets, cells = 'mean ± std' of one metric."""
+    """Rows = method × views, columns = targets, cells = 'mean ± std' of one metric over the seeds (just
+    the value when there is one seed)."""
     agg = aggregate(rows)
     targets = sorted({g[2] for g in agg})
     lines = sorted({(g[0], g[1]) for g in agg})
@@ -38,7 +39,7 @@ def table(rows: list[dict], metric: str = "heldout_iou") -> tuple[list[str], lis
         cells, vals = [m, str(k)], []
         for t in targets:
             v = agg.get((m, k, t), {}).get(metric)
-            cells.append("-" if v is None else f"{v[0]:.3f} ± {v[1]:.3f}")
+            cells.append("-" if v is None else f"{v[0]:.3f} ± {v[1]:.3f}" if v[2] > 1 else f"{v[0]:.3f}")
             vals.append(np.nan if v is None else v[0])
         body.append(cells)
         values.append(vals)

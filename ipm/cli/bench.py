@@ -48,6 +48,9 @@ def register(app: typer.Typer) -> None:
         if dry_run:
             emit({"todo": [r["key"] for r in rows]}, json_out)
             return
+        from ipm.bench.figures import write_contact_sheets
+
+        sheets = write_contact_sheets(experiment, exp, rows, out)
         write_text(out / "table.md", markdown(rows))
         write_text(out / "table.csv", csv_text(rows))
         write_text(out / "table.tex", latex(rows))
@@ -61,6 +64,10 @@ def register(app: typer.Typer) -> None:
             f"Versions: ipm {ipm.__version__}, torch {torch.__version__}, Python {platform.python_version()}", "",
             f"Protocol: DESIGN.md (inputs {exp.size} px, 16 held-out views at {exp.heldout_size} px, "
             f"budget {exp.budget} evaluations, seeds {list(exp.seeds)}).", "",
+            "Contact sheets (target, then each method's result from held-out view 1, normalized as scored): "
+            + (", ".join(f"[{p.name}]({p.name})" for p in sheets) or "none") + ".", "",
+            *([exp.notes, ""] if exp.notes else []),
             markdown(rows)])
         write_text(out / "README.md", readme + "\n")
-        emit({"rows": str(out / "rows.jsonl"), "table": str(out / "table.md"), "cells": len(rows)}, json_out)
+        emit({"rows": str(out / "rows.jsonl"), "table": str(out / "table.md"), "cells": len(rows),
+              "sheets": [str(p) for p in sheets]}, json_out)

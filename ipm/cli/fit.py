@@ -27,7 +27,8 @@ def register(app: typer.Typer) -> None:
         preset: PresetOpt = None,
         loss: Annotated[str, typer.Option(help="mask loss: iou or mse")] = "iou",
         local: Annotated[str, typer.Option(help="gradient refinement: adam, mma or lbfgs (nlopt)")] = "adam",
-        lr: Annotated[float, typer.Option(help="Adam learning rate in normalized parameter space")] = 0.02,
+        lr: Annotated[float | None, typer.Option(help="Adam learning rate in normalized parameter space "
+                                                 "(default: the generator's, 0.005 for dishes, else 0.02)")] = None,
         nlopt_algorithm: Annotated[str, typer.Option("--nlopt-algorithm",
                                                      help="GN_CRS2_LM, GN_ESCH or GN_ISRES")] = "GN_CRS2_LM",
         fix: Annotated[list[str] | None, typer.Option(help="NAME=VALUE held fixed, repeatable")] = None,

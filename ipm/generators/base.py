@@ -48,6 +48,9 @@ class Generator(ABC):
     spec: ParamSpec
     presets: Mapping[str, Mapping[str, Value]] = {}
     description: str = ""
+    # Adam step of silhouette fits in normalized parameter space (ipm.optim.fit.fit_lr); generators with
+    # many fine-grained parameters (a profile of radii) want a smaller one
+    mask_lr: float = 0.02
 
     # -- values --------------------------------------------------------------------------------
     def values(self, preset: str | None = None, overrides: Mapping[str, object] | None = None) -> dict:

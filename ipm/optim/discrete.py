@@ -72,7 +72,7 @@ class MemeticSettings:
     p_mutation: float = 0.2
     sigma_mutation: float = 0.3
     refine_steps: int = 50
-    lr: float = 0.01
+    lr: float | None = None   # Adam step of the offspring refinement; None: the fit's (thesis: 0.01)
     stall_generations: int = 3
     min_diversity: float = 0.02
     neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value

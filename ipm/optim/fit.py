@@ -37,6 +37,9 @@ LOG2S_RANGE = 2.0      # uniform scale in [1/4, 4]
 # yaw in [-360, 360] degrees: starts are wrapped into [-180, 180), so a refinement can turn either way
 # by half a turn without meeting the bound
 YAW_RANGE = 360.0
+# Default Adam steps in normalized parameter space (generators may set ``mask_lr``; ``--lr`` overrides)
+MASK_LR = 0.02
+MESH_LR = 0.02
 # blur of the final refinement of mesh generators, relative to the search's: 0.03 px^2 by default,
 # where the soft silhouette's 0.5 level lies within about 0.2 px of the hard one (measured on the
 # teacup-to-mug test: final exact IoU 0.96 with 0.15, 0.98 with 0.03)
@@ -87,7 +90,7 @@ class FitSettings:
     camera: str = "known"            # known | fit
     loss: str = "iou"                # iou | mse (masks); chamfer for mesh targets is automatic
     local: str = "adam"              # adam | mma | lbfgs
-    lr: float = 0.02
+    lr: float | None = None          # Adam step in normalized space; None: the generator's (see fit_lr)
     sigma: float = 0.0               # soft rasterizer blur; 0 = the renderer's default for the image size
     preset: str | None = None        # start from this preset (default: the generator's defaults)
     free: list[str] | None = None    # continuous parameters to fit (default: all)
@@ -111,6 +114,8 @@ class FitSettings:
             raise ValueError(f"camera: expected known or fit, got {self.camera!r}")
         if self.loss not in L.LOSSES:
             raise ValueError(f"loss: expected one of {', '.join(L.LOSSES)}, got {self.loss!r}")
+        if self.lr is not None and not 0 < self.lr <= 1:
+            raise ValueError(f"lr: expected a learning rate in (0, 1], got {self.lr}")
         if self.local not in G.LOCAL:
             raise ValueError(f"local optimizer: expected one of {', '.join(G.LOCAL)}, got {self.local!r}")
 
@@ -468,6 +473,14 @@ def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tenso
 # The whole fit
 # ----------------------------------------------------------------------------------------------
 
+def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float:
+    """The Adam step: ``settings.lr`` if given, else the generator's ``mask_lr`` for silhouettes and
+    :data:`MESH_LR` for mesh targets."""
+    if settings.lr is not None:
+        return float(settings.lr)
+    return float(getattr(gen, "mask_lr", MASK_LR)) if isinstance(target, MaskTarget) else MESH_LR
+
+
 def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink: Callable[[dict], None] | None = None,
             replay=(), progress: Callable[[Evaluator], None] | None = None) -> tuple[FitResult, Problem, dict]:
     """Search, then polish; returns (FitResult, the problem, the best point ``{"x", "discrete"}``)."""
@@ -492,10 +505,16 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
                     presets=[(x, prob.clamp_discrete({**prob.d0, **{k: v for k, v in d.items() if k in searched}}))
                              for x, d in presets])
 
+    lr = fit_lr(gen, target, settings)
+
+    search_lr = lr
+    if settings.discrete == "memetic" and settings.memetic.lr is not None:
+        search_lr = float(settings.memetic.lr)
+
     def refine(x, d, steps):
         if ev.remaining <= 0:
             raise BudgetExhausted
-        return G.refine(E, x, d, min(steps, ev.remaining), settings.local, settings.lr, mask=prob.search_mask)
+        return G.refine(E, x, d, min(steps, ev.remaining), settings.local, search_lr, mask=prob.search_mask)
 
     polish = int(settings.budget * settings.polish)
     ev.budget = max(ev.count + 1, settings.budget - polish)
@@ -519,7 +538,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
         ev.phase = f"polish:{i}"
         share = ev.remaining // (len(leaders) - i)
         try:
-            G.refine(E, lead.x, lead.discrete, share, settings.local, settings.lr / 2, mask=prob.pose_mask)
+            G.refine(E, lead.x, lead.discrete, share, settings.local, lr / 2, mask=prob.pose_mask)
         except BudgetExhausted:
             break
     best = {"x": ev.best.x if ev.best.x is not None else starts[0][0], "discrete": ev.best.discrete or dict(prob.d0)}

@@ -1,0 +1,53 @@
+"""Contact sheets for a bench: per target, the target and every method's result from one held-out view."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ipm.bench.config import Experiment
+from ipm.bench.harness import _target_mesh, mesh_path
+
+SHEET_VIEW = 1  # held-out view 1: azimuth 33.75°, elevation 40° (never an input view)
+
+
+def sheet_cells(exp: Experiment, rows: list[dict], target: str) -> list[dict]:
+    """One finished row per (method, views) of ``target``: the lowest seed, in the experiment's order."""
+    ok = {r["key"]: r for r in rows if r.get("status") == "ok" and r["target"] == target}
+    chosen = []
+    for cell in exp.cells():
+        if cell.target != target or cell.key not in ok:
+            continue
+        if any(c["method"] == cell.method and c["views"] == cell.views for c in chosen):
+            continue
+        chosen.append(ok[cell.key])
+    return chosen
+
+
+def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict], out_dir: str | Path,
+                         *, size: int = 192) -> list[Path]:
+    """Write ``sheet_<target>.png`` for every target with at least one stored prediction."""
+    import numpy as np
+    import torch
+    import trimesh
+
+    from ipm.render.camera import heldout_views
+    from ipm.render.preview import render_preview, save_png
+    from ipm.types import TriMesh
+    from ipm.viz.sheet import contact_sheet
+
+    cam = heldout_views(size)[SHEET_VIEW]
+    written = []
+    for t in exp.targets:
+        cells = [r for r in sheet_cells(exp, rows, t.name) if mesh_path(out_dir, r["key"]).is_file()]
+        if not cells:
+            continue
+        target, _, _ = _target_mesh(str(Path(exp_path).resolve()), t.name)
+        pictures, labels = [render_preview(target, cam, size=size)], [f"{t.name} (target)"]
+        for r in cells:
+            tm = trimesh.load(mesh_path(out_dir, r["key"]), force="mesh", process=False)
+            mesh = TriMesh(torch.as_tensor(tm.vertices, dtype=torch.float64), torch.as_tensor(tm.faces))
+            pictures.append(render_preview(mesh, cam, size=size))
+            labels.append(f"{r['method']} K={r['views']} IoU {r.get('heldout_iou', float('nan')):.2f}")
+        sheet = contact_sheet(pictures, cols=min(len(pictures), 6), labels=labels)
+        written.append(save_png(Path(out_dir) / f"sheet_{t.name}.png", np.asarray(sheet)))
+    return written
