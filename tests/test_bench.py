@@ -54,10 +54,13 @@ def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert "sheet_cup_1.png" in (out / "README.md").read_text()
     # resume: nothing is recomputed (rows unchanged, no new lines)
     before = (out / "rows.jsonl").read_text()
+    capsys.readouterr()
     with pytest.raises(SystemExit) as e:
-        main(["bench", str(exp), "-o", str(out), "--resume", "--json"])
+        main(["bench", str(exp), "-o", str(out), "--resume"])
     assert e.value.code == 0
     assert (out / "rows.jsonl").read_text() == before
+    printed = capsys.readouterr().out  # the terminal table
+    assert "held-out silhouette IoU" in printed and "ipm-dishes" in printed and "visual-hull" in printed
     # an interrupted bench (last row missing, torn line) resumes with only the missing cell
     lines = before.splitlines()
     (out / "rows.jsonl").write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:20])

@@ -69,5 +69,25 @@ def register(app: typer.Typer) -> None:
             *([exp.notes, ""] if exp.notes else []),
             markdown(rows)])
         write_text(out / "README.md", readme + "\n")
+        if not json_out:
+            _print_table(rows)
         emit({"rows": str(out / "rows.jsonl"), "table": str(out / "table.md"), "cells": len(rows),
               "sheets": [str(p) for p in sheets]}, json_out)
+
+
+def _print_table(rows: list[dict]) -> None:
+    """The held-out IoU table (rows method x views, columns targets) as a rich table on stdout."""
+    from rich.console import Console
+    from rich.table import Table
+
+    from ipm.bench.tables import table
+
+    header, body, _ = table(rows, "heldout_iou")
+    if not body:
+        return
+    t = Table(title="held-out silhouette IoU (mean ± std over seeds)")
+    for h in header:
+        t.add_column(h, justify="left" if h in ("method", "views") else "right")
+    for b in body:
+        t.add_row(*b)
+    Console().print(t)
