@@ -27,16 +27,10 @@ log = logging.getLogger(__name__)
 
 
 def _settings_from_json(d: dict):
-    from ipm.optim import discrete as D
     from ipm.optim.fit import FitSettings
 
     known = {f.name for f in fields(FitSettings)}
-    kw = {k: v for k, v in d.items() if k in known}
-    if isinstance(kw.get("memetic"), dict):
-        kw["memetic"] = D.MemeticSettings(**kw["memetic"])
-    if isinstance(kw.get("nlopt"), dict):
-        kw["nlopt"] = D.NloptSettings(**kw["nlopt"])
-    return FitSettings(**kw)
+    return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
 
 
 def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",

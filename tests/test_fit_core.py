@@ -81,9 +81,32 @@ def test_non_finite_loss_is_steered_away():
 
 def test_settings_validation():
     for bad, msg in [(dict(budget=0), "at least 1"), (dict(discrete="random"), "discrete search"),
-                     (dict(camera="maybe"), "camera"), (dict(loss="l7"), "loss"), (dict(local="sgd"), "local")]:
+                     (dict(camera="maybe"), "camera"), (dict(loss="l7"), "loss"), (dict(local="sgd"), "local"),
+                     (dict(lr=0.0), r"lr: expected a learning rate in \(0, 1\]")]:
         with pytest.raises(ValueError, match=msg):
             FitSettings(**bad).check()
+    with pytest.raises(ValueError, match="memetic settings: unknown popsize"):
+        FitSettings(memetic={"popsize": 4})
+
+
+def test_nested_settings_from_dicts_and_the_learning_rate():
+    from ipm.optim import discrete as D
+    from ipm.optim.fit import MESH_LR, MaskTarget, fit_lr
+
+    s = FitSettings(memetic={"lr": 0.01, "population": 4}, nlopt={"algorithm": "GN_ESCH"})
+    assert s.memetic == D.MemeticSettings(lr=0.01, population=4) and s.nlopt.algorithm == "GN_ESCH"
+    dishes, building = get_generator("dishes"), get_generator("building")
+    from ipm.render.camera import input_views
+
+    masks = MaskTarget(torch.eye(8)[None], [c.to(torch.float32) for c in input_views(1, 8)])
+    assert fit_lr(dishes, masks, FitSettings()) == dishes.mask_lr == 0.005
+    assert fit_lr(building, masks, FitSettings()) == 0.02
+    assert fit_lr(dishes, masks, FitSettings(lr=0.03)) == 0.03
+    import trimesh
+
+    ball = trimesh.creation.icosphere(1)
+    mesh = MeshTarget(TriMesh(torch.as_tensor(ball.vertices), torch.as_tensor(ball.faces)))
+    assert fit_lr(dishes, mesh, FitSettings()) == MESH_LR
 
 
 def test_enumerate_refuses_too_many_combinations():

@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from typing import Any
 
 import numpy as np
@@ -104,6 +104,18 @@ class FitSettings:
     resolution: int = 128            # SDF generators: meshing of the result
     memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
     nlopt: D.NloptSettings = field(default_factory=D.NloptSettings)
+
+    def __post_init__(self):
+        # nested settings may come as dicts (JSON run files, experiment TOML, the Python API)
+        for name, cls in (("memetic", D.MemeticSettings), ("nlopt", D.NloptSettings)):
+            v = getattr(self, name)
+            if isinstance(v, dict):
+                known = {f.name for f in fields(cls)}
+                unknown = sorted(set(v) - known)
+                if unknown:
+                    raise ValueError(f"{name} settings: unknown {', '.join(unknown)}; expected some of "
+                                     f"{', '.join(sorted(known))}")
+                setattr(self, name, cls(**v))
 
     def check(self) -> None:
         if self.budget < 1:
