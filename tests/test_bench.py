@@ -104,6 +104,9 @@ def test_tables_mark_the_best():
     md = markdown(rows)
     assert "**0.850 ± 0.050**" in md and "| **0.005** |" in md  # one seed: no spread shown
     assert "\\textbf{0.850 $\\pm$ 0.050}" in latex(rows)
+    rows[0]["param_error"] = 0.1  # only method a has a parameter error: b gets no row in that table
+    section = markdown(rows).split("### param. error")[1].split("###")[0]
+    assert "| a | 1 |" in section and "| b |" not in section
 
 
 def test_bad_experiment_files(tmp_path):

@@ -65,6 +65,8 @@ def markdown(rows: list[dict]) -> str:
         header, body, values = table(rows, key)
         if not body or all(all(np.isnan(v) for v in r) for r in values):
             continue
+        keep = [i for i, r in enumerate(values) if not all(np.isnan(v) for v in r)]  # rows with a value
+        body, values = [body[i] for i in keep], [values[i] for i in keep]
         body = _bold_best([list(b) for b in body], values, higher, lambda s: f"**{s}**")
         out += [f"### {title} ({'higher' if higher else 'lower'} is better)", "",
                 "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
