@@ -6,9 +6,13 @@ Geometry (Y up, the base at y = 0, revolved about Y):
 * **Outer wall.** ``radius_0 .. radius_{k-1}`` at evenly spaced heights from the base to the top of
   the wall are joined by a uniform Catmull-Rom spline (it passes through every control radius).
 * **Inner wall.** At every height ``y`` above the bottom, the inner radius is the outer one minus
-  ``wall_thickness`` measured across the wall (the horizontal offset is ``t * sqrt(1 + (dR/dy)^2)``),
-  clamped to at least a tenth of the outer radius. Both walls are functions of ``y`` and the inner
-  one is strictly inside, so the profile is a simple closed loop for *every* parameter vector.
+  the wall's thickness ``t(y)`` measured across the wall (the horizontal offset is
+  ``t * sqrt(1 + (dR/dy)^2)``), clamped to at least a tenth of the outer radius. ``t(y)`` is
+  ``wall_thickness`` plus a Catmull-Rom spline through ``wall_thicken_0 .. wall_thicken_{k-1}`` at the
+  radii's heights (0 by default: a uniform wall; real vessels are often thicker near the bottom, and
+  scans with a poorly captured interior show the inside as a thick lower wall), at least 0.001.
+  Both walls are functions of ``y`` and the inner one is strictly inside, so the profile is a simple
+  closed loop for *every* parameter vector.
 * **Rim.** Half an ellipse joins the walls' tops; its height is ``rim_round`` times half the rim
   width (0: flat). The top of the rim is at exactly ``height``.
 * **Bottom.** ``bottom_thickness`` (at most half the wall height); ``bottom_dome`` raises the outer
@@ -121,7 +125,7 @@ _LIFT = (0.15, 0.08, 0.0, -0.08, -0.15)
 
 
 def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
-    """The parameters of a dish with ``n_radii`` profile radii (49 continuous + ``has_handle`` for 9)."""
+    """The parameters of a dish with ``n_radii`` profile radii (58 continuous + ``has_handle`` for 9)."""
     if n_radii < 3:
         raise ValueError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
     ps = [_f("height", 1.0, 0.02, 4.0, "total height, base to the top of the rim")]
@@ -135,6 +139,11 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
         _f("spout", 0.0, 0.0, 0.5, "radial bulge of the lip opposite the handle"),
         _f("spout_width", 0.35, 0.1, 1.5, "angular width of the spout (radians)"),
         _f("spout_length", 0.2, 0.05, 0.6, "how far down the spout reaches (fraction of height)"),
+    ]
+    ps += [_f(f"wall_thicken_{i}", 0.0, -0.1, 0.5, f"extra wall thickness at height {i}/{n_radii - 1} of the wall",
+              detail=True)
+           for i in range(n_radii)]
+    ps += [
         _f("handle_top", 0.8, 0.5, 0.97, "upper attachment height (fraction of height)"),
         _f("handle_bottom", 0.25, 0.03, 0.45, "lower attachment height (fraction of height)"),
         _f("handle_reach", 0.3, 0.02, 1.5, "how far the handle stands out from the wall"),
@@ -233,7 +242,8 @@ class DishesGenerator(Generator):
             return slice(idx[first], idx[first] + count)
 
         # parameters used as vectors are contiguous in theta: one slice instead of a cat of scalars
-        self._slices = {"radii": run("radius_0", self.k), "attach": run("handle_top", 2),
+        self._slices = {"radii": run("radius_0", self.k), "thicken": run("wall_thicken_0", self.k),
+                        "attach": run("handle_top", 2),
                         "out": run("handle_out_1", 5), "lift": run("handle_lift_1", 5),
                         "sections": run("handle_widen_0", 2 * N_HANDLE)}
 
@@ -253,7 +263,7 @@ class DishesGenerator(Generator):
         p = _Named(theta, self._index)
         v = {key: theta[sl] for key, sl in self._slices.items()}
         v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
-        prof = _profile(p, v["radii"], L)
+        prof = _profile(p, v["radii"], L, v["thicken"])
         c, _ = mk.angles(L.radial, theta)
         out = {"r": prof.r, "y": prof.y, "y_bottom": prof.y_bottom, "y_top": prof.y_top,
                "q": p["spout"] * _spout_height(p, prof.y), "w": _spout_angle(p, c)}
@@ -373,22 +383,27 @@ class _Profile:
     inner: torch.Tensor        # (wall,) inner wall radii at heights evenly spaced in [bottom, wall_top]
 
 
-def _inner(p, R, dR, H):
-    """Inner radius for outer radius ``R`` and spline slope ``dR`` (d R / d u, u = y / wall top)."""
+THICKNESS_MIN = 1e-3             # the wall is at least this thick
+
+
+def _inner(p, R, dR, H, extra):
+    """Inner radius for outer radius ``R``, spline slope ``dR`` (d R / d u, u = y / wall top) and extra
+    thickness ``extra`` (the ``wall_thicken`` spline at the same heights)."""
     slope = dR / H
-    r = R - p["wall_thickness"] * torch.sqrt(sadd(slope * slope, 1.0))
+    t = torch.clamp(p["wall_thickness"] + extra, min=THICKNESS_MIN)
+    r = R - t * torch.sqrt(sadd(slope * slope, 1.0))
     return torch.maximum(r, smul(R, INNER_MIN))
 
 
-def _profile(p, radii: torch.Tensor, L: DishLod) -> _Profile:
-    """The closed profile loop (without the two axis poles) from the named parameters ``p`` ((1,) each)
-    and the control radii ``(k,)``."""
+def _profile(p, radii: torch.Tensor, L: DishLod, thicken: torch.Tensor) -> _Profile:
+    """The closed profile loop (without the two axis poles) from the named parameters ``p`` ((1,) each),
+    the control radii ``(k,)`` and the extra wall thicknesses at the same heights ``(k,)``."""
     k = radii.shape[0]
     dt, dev = radii.dtype, radii.device
     H = p["height"]
     # rim width from the top of the wall (u = 1): R(1) = radius_{k-1}, R'(1) = (k-1)(P_{k-1} - P_{k-2})
     R1 = radii[-1:]
-    in1 = _inner(p, R1, smul(radii[-1:] - radii[-2:-1], float(k - 1)), H)
+    in1 = _inner(p, R1, smul(radii[-1:] - radii[-2:-1], float(k - 1)), H, thicken[-1:])
     half = smul(R1 - in1, 0.5)
     c = torch.minimum(p["rim_round"] * half, smul(H, 0.25))                 # rim height
     Hw = H - c                                                               # top of the walls
@@ -403,7 +418,7 @@ def _profile(p, radii: torch.Tensor, L: DishLod) -> _Profile:
     v = torch.flip(u, (0,))
     y_in = b + (Hw - b) * v
     R_at, dR_at = mk.catmull_rom(radii, y_in / Hw, derivative=True)
-    r_in = _inner(p, torch.clamp(R_at, min=RADIUS_MIN), dR_at, H)
+    r_in = _inner(p, torch.clamp(R_at, min=RADIUS_MIN), dR_at, H, mk.catmull_rom(thicken, y_in / Hw))
     # rim: interior samples of half an ellipse from the outer to the inner wall top
     ct, st = mk.const(_rim_arc, L.rim, like=radii)
     a = smul(R_out[-1:] - r_in[:1], 0.5)

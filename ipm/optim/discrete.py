@@ -76,6 +76,7 @@ class MemeticSettings:
     stall_generations: int = 3
     min_diversity: float = 0.02
     neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value
+    refine_elite: bool = True  # the elite is refined again in every generation (not only copied)
 
 
 @dataclass(frozen=True)
@@ -165,7 +166,13 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
             generation += 1
             ev.phase = f"memetic:gen{generation}"
             pop.sort(key=lambda p: p[2])
-            children = [pop[0]]  # elitism
+            # elitism, and the elite keeps descending: without it no candidate gets more than one short
+            # refinement before the polish, which is too little where many parameters are determined
+            elite = pop[0]
+            if s.refine_elite:
+                xr, loss = refine(elite[0], elite[1], s.refine_steps)
+                elite = (xr, elite[1], loss) if loss <= elite[2] else elite
+            children = [elite]
             while len(children) < s.population:
                 a, b = (min(rng.choice(len(pop), size=s.tournament, replace=False)) for _ in range(2))
                 ga, gb = _genome(space, pop[a][0], pop[a][1]), _genome(space, pop[b][0], pop[b][1])

@@ -99,7 +99,7 @@ class FitSettings:
     pose: bool = True
     prior_weight: float = 0.0        # pull towards the starting preset in normalized space
     polish: float = 0.15             # share of the budget kept for the final gradient refinement
-    coarse_to_fine: bool = True      # hold the generator's detail parameters during the search
+    coarse_to_fine: bool = True      # silhouettes: hold the generator's detail parameters during the search
     lod: Any = None
     resolution: int = 128            # SDF generators: meshing of the result
     memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
@@ -225,9 +225,13 @@ class Problem:
         if not settings.pose:
             self.pose_mask[self.n:self.n + 5] = 0
         # coarse to fine: detail parameters (per-section offsets, ...) stay at their start during the
-        # search, which then explores fewer, better-determined dimensions; the polish frees them
+        # search of a silhouette fit, which then explores fewer, better-determined dimensions; the
+        # polish frees them. A mesh target determines them all: holding them there only lets the coarse
+        # parameters bend to fit what the details should (the real mug scan: F-score at 0.02 of 0.72
+        # with, 0.88 without)
         by_name = {p.name: p for p in gen.spec.continuous}
-        detail = [i for i, j in enumerate(self.free) if settings.coarse_to_fine and by_name[cont[j]].detail]
+        c2f = settings.coarse_to_fine and isinstance(target, MaskTarget)
+        detail = [i for i, j in enumerate(self.free) if c2f and by_name[cont[j]].detail]
         if len(detail) == self.n:
             detail = []
         self.coarse = [i for i in range(self.n) if i not in set(detail)]
