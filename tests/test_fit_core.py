@@ -118,3 +118,18 @@ def test_enumerate_refuses_too_many_combinations():
     ev = Evaluator(lambda x, d, g: (x.sum(), torch.ones_like(x), {}), 10)
     with pytest.raises(ValueError, match="100 combinations"):
         enumerate_discrete(ev, space, lambda x, d, s: (x, 0.0), np.random.default_rng(0))
+
+
+def test_pose_starts_spread_over_tied_yaws():
+    from ipm.optim.fit import spread_starts, yaw_free
+
+    yaws = [0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0]
+    tied = [(0.2, i, y, None) for i, y in enumerate(yaws)]  # a body of revolution: every yaw alike
+    kept = spread_starts(tied, keep=4)
+    assert [e[2] for e in kept][:4] == [0.0, 180.0, 90.0, 270.0] and len(kept) == 8  # all ties kept
+    assert yaw_free(kept)
+    graded = [(0.1 + 0.01 * i, i, y, None) for i, y in enumerate(yaws)][::-1]  # the yaw matters
+    kept = spread_starts(graded, keep=4)
+    assert [e[0] for e in kept] == sorted(e[0] for e in graded)[:4] and not yaw_free(kept)
+    pair = [(0.1, 0, 0.0, None), (0.1, 1, 180.0, None), (0.3, 2, 90.0, None)]  # front and back alike
+    assert not yaw_free(spread_starts(pair, keep=4))

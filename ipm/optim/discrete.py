@@ -54,6 +54,8 @@ class Space:
     starts: list[tuple[torch.Tensor, dict]]
     fixed_discrete: dict = field(default_factory=dict)
     presets: list[tuple[torch.Tensor, dict]] = field(default_factory=list)
+    # (x, discrete) -> x posed anew for these discrete values; set when the starts' poses cannot tell
+    pose_search: Callable[[torch.Tensor, dict], torch.Tensor] | None = None
 
     def encode(self, d: dict) -> np.ndarray:
         return np.array([(d[p.name] - p.lo) / max(p.hi - p.lo, 1) for p in self.discrete], dtype=np.float64)
@@ -93,7 +95,11 @@ def best_pose(ev: Evaluator, space: Space, x: torch.Tensor, d: dict) -> torch.Te
     """``x`` with the pose (and camera) of the kept start that suits discrete values ``d`` best.
 
     The pose grid was ranked with the starting discrete values; another count (of floors, boxes) can
-    prefer another of the kept poses, so each is tried once (one evaluation, no gradient)."""
+    prefer another of the kept poses, so each is tried once (one evaluation, no gradient). Where the
+    starts' poses were all alike for the starting values (``space.pose_search``), the pose grid is
+    ranked again for ``d`` instead."""
+    if space.pose_search is not None and d != space.starts[0][1]:
+        return space.pose_search(x, d)
     if len(space.starts) < 2:
         return x
     best, best_x = math.inf, x
@@ -132,7 +138,8 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
     # the kept starts (the best poses of the grid: a symmetric body seen from few views often leaves
     # several poses close, and the right one only wins after its shape is refined), then the presets
     # (diverse discrete values), then random individuals
-    n_starts = max(1, s.population // 2)
+    # (when the start looks alike from every yaw, its poses are one start: pose_search poses the rest)
+    n_starts = 1 if space.pose_search is not None else max(1, s.population // 2)
     candidates = list(space.starts[:n_starts]) + list(space.presets)
     while len(candidates) < s.population:
         candidates.append(random_individual())

@@ -440,37 +440,79 @@ class Problem:
 
 def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4):
     """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale and translation set
-    from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best)."""
-    ev.phase = "init"
+    from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best,
+    whether the grid left the yaw undetermined: see :func:`yaw_free`)."""
+    d = dict(prob.d0)
+    graded = pose_grid(prob, ev, d, keep=keep)
+    starts = [(e[1], d) for e in graded] or [(prob.x0(), d)]
+    return starts, preset_starts(prob, starts[0][0]), yaw_free(graded)
+
+
+def pose_grid(prob: Problem, ev: Evaluator, d: dict, x: torch.Tensor | None = None, keep: int = 4
+              ) -> list[tuple]:
+    """The best ``keep`` poses of the shape with discrete values ``d`` and the generator coordinates of
+    ``x`` (default: the start), best first, as :func:`spread_starts` entries ``(loss, x, yaw, camera)``."""
+    ev.phase = ev.phase if x is not None else "init"
+    theta = None if x is None else prob.decode(x.detach().double())[0]
     yaws = [0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0] if prob.s.pose else [0.0]
     cams = [None]
     if prob.cam_fit:
         cams = [(e, 3.2, f) for e in (5.0, 25.0, 45.0) for f in (25.0, 40.0, 60.0)]
-    d = dict(prob.d0)
     scored = []
     for cam in cams:
         for yaw in yaws:
             if ev.remaining <= 1:
                 break
-            x = prob.x0(yaw=yaw, camera=cam)
+            xp = prob.x0(yaw=yaw, camera=cam, theta=theta)
             if isinstance(prob.target, MaskTarget) and prob.s.pose:
-                loss, _ = ev(x, d, grad=False)
+                loss, _ = ev(xp, d, grad=False)
                 area, cen = ev.last.get("area"), ev.last.get("centroid")
                 tgt = prob.target.masks.sum((-2, -1))
                 if area is not None and min(area) > 0:
                     s = float(np.clip(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)), 0.26, 3.9))
                     t = (0.0, 0.0, 0.0)
                     if cen is not None:
-                        cams_x = prob.cameras(x)
+                        cams_x = prob.cameras(xp)
                         # scaling about the canonical center moves the rendered centroid by a factor s
                         # relative to the image center of the object; the offset is small, so ignore it
                         t = translation_from_centroids(cams_x, cen, _centroids(prob.target.masks))
-                    x = prob.x0(yaw=yaw, scale=s, t=t, camera=cam)
-            loss, _ = ev(x, d, grad=False)
-            scored.append((loss, x))
-    scored.sort(key=lambda s: s[0])
-    starts = [(x, d) for _, x in scored[:keep]] or [(prob.x0(), d)]
-    return starts, preset_starts(prob, starts[0][0])
+                    xp = prob.x0(yaw=yaw, scale=s, t=t, camera=cam, theta=theta)
+            loss, _ = ev(xp, d, grad=False)
+            scored.append((loss, xp, yaw, cam))
+    return spread_starts(scored, keep)
+
+
+def yaw_free(graded: list[tuple], tol: float = 1e-3) -> bool:
+    """Whether a pose grid's entries (:func:`pose_grid`) leave the yaw undetermined: three or more poses
+    tied with the best, as for a body of revolution (a mug started without its handle)."""
+    return len(graded) >= 3 and all(abs(e[0] - graded[0][0]) <= tol * max(abs(graded[0][0]), 1e-12)
+                                    for e in graded[:3])
+
+
+def spread_starts(scored: list[tuple], keep: int, tol: float = 1e-3) -> list[tuple]:
+    """The ``keep`` best of ``(loss, x, yaw, camera)`` entries (more if more tie with the best), best
+    first; among equal losses (within ``tol``, relative), the yaw farthest from those already kept
+    comes first.
+
+    A shape that looks the same from every yaw (a body of revolution: a mug started without its
+    handle) leaves the pose to be decided by other discrete values; the kept poses, which
+    :func:`ipm.optim.discrete.best_pose` tries for those, should then cover the circle rather than be
+    the first few of the grid."""
+    rest = sorted(scored, key=lambda e: e[0])
+    out: list[tuple] = []
+    if rest:  # every pose tied with the best is kept: the grid's spacing is then the search's
+        keep = max(keep, sum(e[0] <= rest[0][0] + tol * max(abs(rest[0][0]), 1e-12) for e in rest))
+
+    def gap(e) -> float:
+        same = [abs((e[2] - o[2] + 180.0) % 360.0 - 180.0) for o in out if o[3] == e[3]]
+        return min(same, default=360.0)
+
+    while rest and len(out) < keep:
+        lo = rest[0][0]
+        tied = [i for i, e in enumerate(rest) if e[0] <= lo + tol * max(abs(lo), 1e-12)]
+        pick = max(tied, key=lambda i: gap(rest[i]))  # max keeps the first of equal gaps: the grid order
+        out.append(rest.pop(pick))
+    return out
 
 
 def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tensor, dict]]:
@@ -511,15 +553,23 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     t0 = time.perf_counter()
     E = ev
     try:
-        starts, presets = initial_starts(prob, E)
+        starts, presets, free_yaw = initial_starts(prob, E)
     except BudgetExhausted:
-        starts = [(prob.x0(), dict(prob.d0))]
+        starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
         presets = preset_starts(prob, starts[0][0])
     searched = {p.name for p in prob.searched}
+
+    def pose_search(x: torch.Tensor, d: dict) -> torch.Tensor:
+        # the start looked the same from every yaw, so its poses say nothing about where, say, a
+        # handle switched on by the search should point: rank the pose grid again with it
+        graded = pose_grid(prob, E, d, x, keep=1)
+        return graded[0][1] if graded else x
+
     space = D.Space(prob.m, np.asarray(prob.coarse, dtype=np.int64), list(prob.searched), starts,
                     fixed_discrete={k: v for k, v in prob.d0.items() if k not in searched},
                     presets=[(x, prob.clamp_discrete({**prob.d0, **{k: v for k, v in d.items() if k in searched}}))
-                             for x, d in presets])
+                             for x, d in presets],
+                    pose_search=pose_search if free_yaw and not prob.cam_fit else None)
 
     lr = fit_lr(gen, target, settings)
 
