@@ -237,3 +237,21 @@ def test_structured_jacobian_equals_jacfwd_of_the_mesh(preset, overrides, dtype)
     assert J.dtype == dtype and J.shape == ref.shape
     tol = 1e-12 if dtype == torch.float64 else 1e-5
     assert torch.allclose(J, ref, rtol=tol, atol=tol * float(ref.abs().max()))
+
+
+def test_per_height_wall_thickness():
+    """Equal ``wall_thicken_i`` add to ``wall_thickness`` exactly (a spline through equal values is that
+    value); one raised value thickens the wall near its height only, never the outer wall."""
+    k = GEN.k
+    base = GEN.values("mug", {"has_handle": 0})  # (a handle's ends follow the inner wall)
+    even = GEN.to_mesh({**base, **{f"wall_thicken_{i}": 0.02 for i in range(k)}})
+    thick = GEN.to_mesh({**base, "wall_thickness": base["wall_thickness"] + 0.02})
+    assert torch.allclose(even.verts, thick.verts, atol=1e-12)
+    plain = GEN.to_mesh(base)
+    bump = GEN.to_mesh({**base, "wall_thicken_2": 0.15})
+    moved = (bump.verts - plain.verts).norm(dim=1) > 1e-9
+    r = plain.verts[:, [0, 2]].norm(dim=1)
+    y = plain.verts[:, 1]
+    assert moved.any()
+    assert float(r[moved].max()) < 0.9 * float(r.max())   # inner wall only (the outer one is wider)
+    assert float(y[moved].max()) < 0.6 * float(y.max())   # near height 2/8, not at the rim
