@@ -61,6 +61,18 @@ def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert (out / "rows.jsonl").read_text() == before
     printed = capsys.readouterr().out  # the terminal table
     assert "held-out silhouette IoU" in printed and "ipm-dishes" in printed and "visual-hull" in printed
+    # predictions are not committed: a resumed bench without them keeps the sheet instead of redrawing
+    # it with the target alone
+    sheet = (out / "sheet_cup_1.png").read_bytes()
+    stored = sorted((out / "meshes").glob("*.ply"))
+    stored[0].rename(tmp_path / stored[0].name)
+    with pytest.raises(SystemExit) as e:
+        main(["bench", str(exp), "-o", str(out), "--resume"])
+    assert e.value.code == 0
+    assert (out / "sheet_cup_1.png").read_bytes() == sheet
+    assert "sheet_cup_1.png: kept; 1 of 3 predictions" in capsys.readouterr().err
+    assert "sheet_cup_1.png" in (out / "README.md").read_text()
+    (tmp_path / stored[0].name).rename(stored[0])
     # an interrupted bench (last row missing, torn line) resumes with only the missing cell
     lines = before.splitlines()
     (out / "rows.jsonl").write_text("\n".join(lines[:-1]) + "\n" + lines[-1][:20])

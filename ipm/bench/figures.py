@@ -24,8 +24,14 @@ def sheet_cells(exp: Experiment, rows: list[dict], target: str) -> list[dict]:
 
 
 def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict], out_dir: str | Path,
-                         *, size: int = 192) -> list[Path]:
-    """Write ``sheet_<target>.png`` for every target with at least one stored prediction."""
+                         *, size: int = 192, warn=None) -> list[Path]:
+    """Write ``sheet_<target>.png`` for every target with at least one stored prediction; returns the
+    sheets there are afterwards.
+
+    Predictions are stored under ``meshes/`` (not committed). When some of a target's are missing (a
+    bench resumed in a fresh clone), an existing sheet is kept rather than redrawn without them, and
+    ``warn`` (a callable taking one line) is told.
+    """
     import numpy as np
     import torch
     import trimesh
@@ -36,9 +42,17 @@ def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict]
     from ipm.viz.sheet import contact_sheet
 
     cam = heldout_views(size)[SHEET_VIEW]
-    written = []
+    out = []
     for t in exp.targets:
-        cells = [r for r in sheet_cells(exp, rows, t.name) if mesh_path(out_dir, r["key"]).is_file()]
+        chosen = sheet_cells(exp, rows, t.name)
+        cells = [r for r in chosen if mesh_path(out_dir, r["key"]).is_file()]
+        path = Path(out_dir) / f"sheet_{t.name}.png"
+        if len(cells) < len(chosen) and path.is_file():
+            if warn is not None:
+                warn(f"{path.name}: kept; {len(chosen) - len(cells)} of {len(chosen)} predictions are not in "
+                     f"{Path(out_dir) / 'meshes'} (FRESH=1 recomputes them)")
+            out.append(path)
+            continue
         if not cells:
             continue
         target, _, _ = _target_mesh(str(Path(exp_path).resolve()), t.name)
@@ -49,5 +63,5 @@ def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict]
             pictures.append(render_preview(mesh, cam, size=size))
             labels.append(f"{r['method']} K={r['views']} IoU {r.get('heldout_iou', float('nan')):.2f}")
         sheet = contact_sheet(pictures, cols=min(len(pictures), 6), labels=labels)
-        written.append(save_png(Path(out_dir) / f"sheet_{t.name}.png", np.asarray(sheet)))
-    return written
+        out.append(save_png(path, np.asarray(sheet)))
+    return out

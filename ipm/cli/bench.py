@@ -50,7 +50,7 @@ def register(app: typer.Typer) -> None:
             return
         from ipm.bench.figures import write_contact_sheets
 
-        sheets = write_contact_sheets(experiment, exp, rows, out)
+        sheets = write_contact_sheets(experiment, exp, rows, out, warn=lambda line: err.print(line))
         write_text(out / "table.md", markdown(rows))
         write_text(out / "table.csv", csv_text(rows))
         write_text(out / "table.tex", latex(rows))
