@@ -62,7 +62,8 @@ def test_dishes_fit_to_the_real_mug_scan_by_chamfer():
     its ``mug`` preset reaches F-score >= 0.8 at tau = 0.02 and >= 0.98 at tau = 0.05 (exact
     point-to-surface distances), scored in the target's frame, where the fit placed it. (Renormalizing
     the result by its own bounding box, as the bench does with predictions from unknown frames, moves
-    it by a few percent, which alone costs about 0.2 of F-score at 0.02.) The scan's interior is a
+    it by a few percent, which alone costs 0.08 to 0.2 of F-score at 0.02: results/perf/fit_mesh.md.)
+    The scan's interior is a
     thick lower wall, which the per-height ``wall_thicken_i`` parameters follow."""
     from conftest import real_path
 
