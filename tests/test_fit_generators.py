@@ -63,8 +63,8 @@ def test_dishes_fit_to_the_real_mug_scan_by_chamfer():
     point-to-surface distances), scored in the target's frame, where the fit placed it. (Renormalizing
     the result by its own bounding box, as the bench does with predictions from unknown frames, moves
     it by a few percent, which alone costs 0.08 to 0.2 of F-score at 0.02: results/perf/fit_mesh.md.)
-    The scan's interior is a
-    thick lower wall, which the per-height ``wall_thicken_i`` parameters follow."""
+    The scan's interior is a thick lower wall, which the per-height ``wall_thicken_i`` parameters
+    follow."""
     from conftest import real_path
 
     from ipm.fitting import load_target
