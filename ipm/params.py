@@ -12,7 +12,7 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Literal
 
@@ -240,3 +240,17 @@ def load_param_file(path: str | Path) -> tuple[str | None, dict[str, object]]:
 def param_file_json(generator: str, values: Mapping[str, Value]) -> str:
     """The text of a parameter file."""
     return json.dumps({"generator": generator, "params": dict(values)}, indent=2) + "\n"
+
+
+def check_fields(cls: type, keys: Iterable[str], what: str, noun: str = "field(s)") -> None:
+    """``ValueError`` naming the keys that are not fields of the dataclass ``cls``, and the ones that are."""
+    known = {f.name for f in fields(cls)}
+    unknown = sorted(set(keys) - known)
+    if unknown:
+        raise ValueError(f"{what}: unknown {noun} {', '.join(unknown)}; expected some of {', '.join(sorted(known))}")
+
+
+def dataclass_from(cls: type, values: Mapping[str, object], what: str, noun: str = "field(s)"):
+    """``cls(**values)`` for a dataclass ``cls``, after :func:`check_fields`."""
+    check_fields(cls, values, what, noun)
+    return cls(**dict(values))

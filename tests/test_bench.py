@@ -134,16 +134,19 @@ def test_bad_experiment_files(tmp_path):
     shutil.rmtree(tmp_path)
 
 
-def test_methods_can_be_limited_to_some_targets(tmp_path):
-    from ipm.bench.config import load_experiment
+def cell_keys(path, text: str) -> list[str]:
+    """Write an experiment file and list its cells' keys, sorted."""
+    path.write_text(text)
+    return sorted(c.key for c in load_experiment(path).cells())
 
+
+def test_methods_can_be_limited_to_some_targets(tmp_path):
     exp = tmp_path / "e.toml"
-    exp.write_text('name = "e"\nviews = [1]\n[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
-                   '[[targets]]\nname = "b"\ngenerator = "dishes"\npreset = "bowl"\n'
-                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\ntargets = ["b"]\n'
-                   '[[methods]]\nname = "vh_all"\nmethod = "visual-hull"\n')
-    cells = load_experiment(exp).cells()
-    assert sorted(c.key for c in cells) == ["a|vh_all|1|0", "b|vh_all|1|0", "b|vh|1|0"]
+    assert cell_keys(exp, 'name = "e"\nviews = [1]\n[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
+                     '[[targets]]\nname = "b"\ngenerator = "dishes"\npreset = "bowl"\n'
+                     '[[methods]]\nname = "vh"\nmethod = "visual-hull"\ntargets = ["b"]\n'
+                     '[[methods]]\nname = "vh_all"\nmethod = "visual-hull"\n'
+                     ) == ["a|vh_all|1|0", "b|vh_all|1|0", "b|vh|1|0"]
     exp.write_text(exp.read_text().replace('targets = ["b"]', 'targets = ["c"]'))
     with pytest.raises(ValueError, match="unknown targets c"):
         load_experiment(exp)
@@ -151,12 +154,11 @@ def test_methods_can_be_limited_to_some_targets(tmp_path):
 
 def test_methods_can_have_their_own_seeds(tmp_path):
     exp = tmp_path / "e.toml"
-    exp.write_text('name = "e"\nviews = [1]\nseeds = [0, 1, 2]\n'
-                   '[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
-                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nseeds = [0]\n'
-                   '[[methods]]\nname = "vh3"\nmethod = "visual-hull"\n')
-    cells = load_experiment(exp).cells()
-    assert sorted(c.key for c in cells) == ["a|vh3|1|0", "a|vh3|1|1", "a|vh3|1|2", "a|vh|1|0"]
+    assert cell_keys(exp, 'name = "e"\nviews = [1]\nseeds = [0, 1, 2]\n'
+                     '[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
+                     '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nseeds = [0]\n'
+                     '[[methods]]\nname = "vh3"\nmethod = "visual-hull"\n'
+                     ) == ["a|vh3|1|0", "a|vh3|1|1", "a|vh3|1|2", "a|vh|1|0"]
     assert "seeds" not in load_experiment(exp).method("vh").settings
     exp.write_text(exp.read_text().replace("seeds = [0]\n", "seeds = []\n", 1).replace("seeds = [0, 1, 2]", "seeds = [0]"))
     with pytest.raises(ValueError, match="seeds must be a non-empty list of integers"):

@@ -251,7 +251,9 @@ def test_bsp_and_perturb_bench_methods_convert_the_visual_hull(box):
     mesh, task = box
     hull = normalize_mesh(METHODS["visual-hull"](task, {"resolution": 32}, 1, 0).mesh)
     bsp = METHODS["bsp"](task, {"resolution": 32, "planes": 16, "convexes": 2, "steps": 150}, 1, 0)
-    assert 1 <= bsp.info["convexes"] <= 2 and bsp.info["parameters"] == 4 * bsp.info["planes"]
+    # the size of the representation: a normal and an offset for each of the 16 planes asked for, whether
+    # or not the polytope ends up using them all
+    assert 1 <= bsp.info["convexes"] <= 2 and 4 <= bsp.info["planes"] <= 16 and bsp.info["parameters"] == 64
     assert iou_3d(bsp.mesh, hull, resolution=32, normalize=False) > 0.8
     per = METHODS["perturb"](task, {"resolution": 32, "max_functions": 10}, 1, 0)
     assert 0 <= per.info["functions"] <= 10 and per.info["parameters"] >= 10

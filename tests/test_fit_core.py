@@ -85,7 +85,7 @@ def test_settings_validation():
                      (dict(lr=0.0), r"lr: expected a learning rate in \(0, 1\]")]:
         with pytest.raises(ValueError, match=msg):
             FitSettings(**bad).check()
-    with pytest.raises(ValueError, match="memetic settings: unknown popsize"):
+    with pytest.raises(ValueError, match=r"memetic settings: unknown setting\(s\) popsize"):
         FitSettings(memetic={"popsize": 4})
 
 

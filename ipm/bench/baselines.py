@@ -57,13 +57,14 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from ipm.bench.methods import Prediction, Task, method
+from ipm.params import check_fields
 from ipm.types import Camera, TriMesh
 
 log = logging.getLogger(__name__)
@@ -76,11 +77,7 @@ DTYPE = torch.float32
 def _settings(cls: type, name: str, settings: dict):
     """Build the settings dataclass ``cls`` from a bench settings dict; ``ValueError`` for unknown names,
     wrong types, and (through ``cls.check``) out-of-range values."""
-    known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(settings) - set(known))
-    if unknown:
-        raise ValueError(f"{name}: unknown setting(s) {', '.join(unknown)}; expected some of "
-                         f"{', '.join(sorted(known))}")
+    check_fields(cls, settings, name, "setting(s)")
     values = {}
     for key, v in settings.items():
         default = getattr(cls, key)

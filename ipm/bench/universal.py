@@ -70,7 +70,7 @@ def bsp_method(task: Task, settings: dict, budget: int, seed: int) -> Prediction
     mesh = conv.generator.to_mesh(conv.values)
     return Prediction(mesh, 0, time.perf_counter() - t0,
                       {"convexes": conv.stats["convexes"], "planes": conv.stats["planes"],
-                       "parameters": 4 * int(conv.stats["planes"])})
+                       "parameters": int(conv.stats["parameters"])})
 
 
 @method("perturb")

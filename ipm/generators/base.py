@@ -48,9 +48,9 @@ class Generator(ABC):
     spec: ParamSpec
     presets: Mapping[str, Mapping[str, Value]] = {}
     description: str = ""
-    # Adam step of silhouette fits in normalized parameter space (ipm.optim.fit.fit_lr); generators with
-    # many fine-grained parameters (a profile of radii) want a smaller one
-    mask_lr: float = 0.02
+    # Adam step of silhouette fits in normalized parameter space (ipm.optim.fit.fit_lr); None: the fit's
+    # default. Generators with many fine-grained parameters (a profile of radii) want a smaller one
+    mask_lr: float | None = None
 
     # -- values --------------------------------------------------------------------------------
     def values(self, preset: str | None = None, overrides: Mapping[str, object] | None = None) -> dict:
@@ -157,7 +157,7 @@ def all_generators() -> dict[str, Callable[[], Generator]]:
     return dict(GENERATORS)
 
 
-class ValuesField:
+class ValuesField(ABC):
     """A field generator with stored parameter values, offering the part of :class:`ipm.sdf.nodes.Tree`'s
     interface that fitting, rendering and the CLI use: ``sdf(theta, points)``, ``with_theta``,
     ``with_values``, ``theta``, ``values``. Subclasses give ``_eval(theta, points)`` and ``bounds()``."""
@@ -174,8 +174,13 @@ class ValuesField:
     def values(self) -> dict:
         return dict(self._values)
 
+    @abstractmethod
     def _eval(self, theta: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-        raise NotImplementedError
+        """The field ``(...)`` at ``points (..., 3)`` for ``theta (n,)``."""
+
+    @abstractmethod
+    def bounds(self) -> tuple:
+        """A conservative bounding box of the surface: ``(lo (3,), hi (3,))`` numpy arrays."""
 
     def sdf(self, theta: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
         """Field ``(...)`` at ``points (..., 3)`` for ``theta (n,)`` (None: the stored values)."""

@@ -48,7 +48,7 @@ import torch
 from ipm.generators import _meshkit as mk
 from ipm.generators._meshkit import lift, sadd, smul, ssub
 from ipm.generators.base import Generator, register_generator
-from ipm.params import Param, ParamSpec, Value
+from ipm.params import Param, ParamSpec, Value, dataclass_from
 from ipm.types import TriMesh
 
 N_RADII = 9
@@ -103,12 +103,7 @@ def resolve_lod(lod: DishLod | Mapping | str | None) -> DishLod:
             raise ValueError(f"lod: expected one of {', '.join(LODS)}, got {lod!r}")
         return LODS[lod]
     if isinstance(lod, Mapping):
-        names = {f.name for f in fields(DishLod)}
-        bad = sorted(set(lod) - names)
-        if bad:
-            raise ValueError(f"lod: unknown field(s) {', '.join(bad)}; "
-                             f"expected some of {', '.join(sorted(names))}")
-        return DishLod(**dict(lod))
+        return dataclass_from(DishLod, lod, "lod")
     raise ValueError(f"lod: expected None, a name, a dict or a DishLod, got {type(lod).__name__}")
 
 

@@ -42,7 +42,7 @@ from torch.func import jacfwd, vmap
 from ipm.generators import _meshkit as mk
 from ipm.generators._meshkit import smul, ssub
 from ipm.generators.base import Generator, register_generator
-from ipm.params import Param, ParamSpec, Value
+from ipm.params import Param, ParamSpec, Value, dataclass_from
 from ipm.types import TriMesh
 
 LEN = (1e-3, 20.0)
@@ -83,12 +83,7 @@ def resolve_lod(lod) -> MeshLod:
             raise ValueError(f"lod: expected one of {', '.join(LODS)}, got {lod!r}")
         return LODS[lod]
     if isinstance(lod, Mapping):
-        names = {f.name for f in fields(MeshLod)}
-        bad = sorted(set(lod) - names)
-        if bad:
-            raise ValueError(f"lod: unknown field(s) {', '.join(bad)}; "
-                             f"expected some of {', '.join(sorted(names))}")
-        return MeshLod(**dict(lod))
+        return dataclass_from(MeshLod, lod, "lod")
     raise ValueError(f"lod: expected None, a name, a dict or a MeshLod, got {type(lod).__name__}")
 
 

@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
@@ -28,6 +28,7 @@ from ipm import losses as L
 from ipm.optim import discrete as D
 from ipm.optim import gradient as G
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.params import dataclass_from
 from ipm.types import Camera, FitResult, TriMesh
 
 log = logging.getLogger(__name__)
@@ -110,12 +111,7 @@ class FitSettings:
         for name, cls in (("memetic", D.MemeticSettings), ("nlopt", D.NloptSettings)):
             v = getattr(self, name)
             if isinstance(v, dict):
-                known = {f.name for f in fields(cls)}
-                unknown = sorted(set(v) - known)
-                if unknown:
-                    raise ValueError(f"{name} settings: unknown {', '.join(unknown)}; expected some of "
-                                     f"{', '.join(sorted(known))}")
-                setattr(self, name, cls(**v))
+                setattr(self, name, dataclass_from(cls, v, f"{name} settings", "setting(s)"))
 
     def check(self) -> None:
         if self.budget < 1:
@@ -536,7 +532,9 @@ def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float
     :data:`MESH_LR` for mesh targets."""
     if settings.lr is not None:
         return float(settings.lr)
-    return float(getattr(gen, "mask_lr", MASK_LR)) if isinstance(target, MaskTarget) else MESH_LR
+    if not isinstance(target, MaskTarget):
+        return MESH_LR
+    return float(getattr(gen, "mask_lr", None) or MASK_LR)
 
 
 def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink: Callable[[dict], None] | None = None,
