@@ -1,7 +1,9 @@
 """Evaluation metrics (not differentiable): mask IoU, volumetric IoU, Chamfer-L1 and F-score.
 
-Conventions from DESIGN.md's evaluation protocol: meshes are compared after normalization (bounding
-box centered at the origin, longest side 2); F-score at tau in normalized units with 10,000 surface
+Conventions from DESIGN.md's evaluation protocol (v2): targets are normalized to the unit bounding
+sphere (bounding-box center at the origin, farthest vertex at distance 1) and predictions are scored
+where the method placed them (``normalize=False``; ``normalize=True`` normalizes both meshes the same
+way first, for comparisons of shapes alone); F-score at tau in normalized units with 10,000 surface
 samples each way and exact point-to-surface distances (libigl); 3D IoU of solid occupancy on a 64^3
 grid over the union of both bounding boxes, inside = generalized winding number > 0.5 (robust to
 non-watertight scans; Jacobson et al., "Robust inside-outside segmentation using generalized winding
@@ -17,7 +19,7 @@ import numpy as np
 from ipm.types import TriMesh
 
 
-def _np_mesh(mesh) -> tuple[np.ndarray, np.ndarray]:
+def mesh_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     """(V (n, 3) float64, F (m, 3) int64) from a TriMesh or a trimesh.Trimesh."""
     if isinstance(mesh, TriMesh):
         V, F = mesh.verts.detach().cpu().double().numpy(), mesh.faces.cpu().numpy()
@@ -37,11 +39,33 @@ def mask_iou(a: np.ndarray, b: np.ndarray) -> float:
     return 1.0 if union == 0 else float(np.logical_and(a, b).sum() / union)
 
 
+def touches_border(mask: np.ndarray) -> bool:
+    """Whether a boolean mask (H, W) has a foreground pixel in its first or last row or column (the
+    object may be clipped by the image)."""
+    m = np.asarray(mask, dtype=bool)
+    return bool(m[0].any() or m[-1].any() or m[:, 0].any() or m[:, -1].any())
+
+
+def unit_sphere_frame(V: np.ndarray) -> tuple[np.ndarray, float]:
+    """(center (3,), scale) of the protocol's normalization: ``(V - center) * scale`` puts the
+    bounding-box center at the origin and the farthest vertex at distance 1 (the unit bounding sphere).
+
+    V: (n, 3) float, n >= 1. Raises ``ValueError`` when every vertex is at one point."""
+    V = np.asarray(V, dtype=np.float64)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0:
+        raise ValueError(f"normalize: expected vertices (n, 3) with n >= 1, got {V.shape}")
+    center = 0.5 * (V.min(0) + V.max(0))
+    radius = float(np.sqrt(((V - center) ** 2).sum(1).max()))
+    if not radius > 0:
+        raise ValueError("normalize: expected a mesh with a nonzero extent, got all vertices at one point")
+    return center, 1.0 / radius
+
+
 def normalize_vertices(V: np.ndarray) -> np.ndarray:
-    """Bounding-box center to the origin, longest side 2."""
-    lo, hi = V.min(0), V.max(0)
-    scale = 2.0 / max(float((hi - lo).max()), 1e-12)
-    return (V - 0.5 * (lo + hi)) * scale
+    """Vertices (n, 3) in the protocol's frame: bounding-box center at the origin, farthest vertex at
+    distance 1 (:func:`unit_sphere_frame`)."""
+    center, scale = unit_sphere_frame(V)
+    return (np.asarray(V, dtype=np.float64) - center) * scale
 
 
 def sample_surface(V: np.ndarray, F: np.ndarray, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -76,7 +100,7 @@ def inside(points: np.ndarray, V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ShapeScores:
-    """Scores of a predicted mesh against a target (both normalized first)."""
+    """Scores of a predicted mesh against a target (in DESIGN.md's order)."""
 
     fscore_002: float
     fscore_005: float
@@ -95,8 +119,8 @@ def fscore(pred, target, tau: float, *, n: int = 10_000, seed: int = 0, normaliz
 
 
 def _surface_scores(pred, target, taus, *, n: int, seed: int, normalize: bool):
-    Vp, Fp = _np_mesh(pred)
-    Vt, Ft = _np_mesh(target)
+    Vp, Fp = mesh_arrays(pred)
+    Vt, Ft = mesh_arrays(target)
     if normalize:
         Vp, Vt = normalize_vertices(Vp), normalize_vertices(Vt)
     rng = np.random.default_rng(seed)
@@ -113,8 +137,8 @@ def _surface_scores(pred, target, taus, *, n: int, seed: int, normalize: bool):
 
 def iou_3d(pred, target, *, resolution: int = 64, normalize: bool = True) -> float:
     """Volumetric IoU of winding-number occupancy on a grid over the union of both bounding boxes."""
-    Vp, Fp = _np_mesh(pred)
-    Vt, Ft = _np_mesh(target)
+    Vp, Fp = mesh_arrays(pred)
+    Vt, Ft = mesh_arrays(target)
     if normalize:
         Vp, Vt = normalize_vertices(Vp), normalize_vertices(Vt)
     return _iou_grid(Vp, Fp, Vt, Ft, resolution)

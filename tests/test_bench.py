@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from ipm.bench.config import load_experiment
@@ -121,6 +122,26 @@ def test_tables_mark_the_best():
     assert "| a | 1 |" in section and "| b |" not in section
 
 
+def test_class_tables_average_targets_and_summarize_against_the_best_other_method():
+    from ipm.bench.tables import class_markdown, class_summary
+
+    def row(m, k, t, s, v):
+        return {"status": "ok", "method": m, "views": k, "target": t, "seed": s, "key": f"{t}|{m}|{k}|{s}",
+                "heldout_iou": v}
+
+    rows = [row("fit", 1, "m1", 0, 0.9), row("fit", 1, "m1", 1, 0.7), row("fit", 1, "m2", 0, 0.6),
+            row("hull", 1, "m1", 0, 0.5), row("hull", 1, "m2", 0, 0.7),
+            row("hull", 12, "m1", 0, 0.95), row("hull", 12, "m2", 0, 0.85),
+            row("deform", 1, "m1", 0, 0.99)]  # only one of the two mugs: does not compete
+    classes = {"m1": "mug", "m2": "mug"}
+    md = class_markdown(rows, classes)
+    # fit: mean over targets of each target's mean over seeds: (0.8 + 0.6) / 2
+    assert "| fit | 1 | 0.700 |" in md and "| hull | 12 | **0.900** |" in md and "| 0.990 (1/2) |" in md
+    summary = class_summary(rows, classes, {"fit"})
+    assert "| mug | 1 | 0.700 (fit) | 0.600 (hull) | +0.100 | 0.900 (hull) | -0.200 |" in summary, summary
+    assert class_markdown(rows, {}) == "" and class_summary(rows, classes, set()) == ""
+
+
 def test_bad_experiment_files(tmp_path):
     bad = tmp_path / "x.toml"
     bad.write_text("name = 'x'\n[[targets]]\nname='t'\n")
@@ -165,34 +186,102 @@ def test_methods_can_have_their_own_seeds(tmp_path):
         load_experiment(exp)
 
 
-def test_predictions_are_scored_after_normalization(tmp_path):
-    """The protocol scores shape, not placement: the target itself, moved and scaled, scores perfectly."""
-    import torch
-
+def _scaled_target_cell(tmp_path, views: int, factor: float) -> tuple[dict, Path]:
+    """Run one cell whose method returns the target itself scaled by ``factor`` about the first input
+    camera's eye; returns (row, output folder)."""
     from ipm.bench import harness
     from ipm.bench.methods import METHODS, Prediction
-    from ipm.types import TriMesh
+    from ipm.bench.protocol import scale_about
 
     exp = tmp_path / "proj" / "experiments" / "e.toml"
     exp.parent.mkdir(parents=True)
-    exp.write_text('name = "e"\nviews = [1]\nsize = 64\nheldout_size = 64\nsamples = 2000\niou_resolution = 24\n'
-                   '[[targets]]\nname = "mug"\ngenerator = "dishes"\npreset = "mug"\n'
-                   '[[methods]]\nname = "moved"\nmethod = "_moved_target"\n')
+    exp.write_text(f'name = "e"\nviews = [{views}]\nsize = 64\nheldout_size = 64\nsamples = 2000\n'
+                   'iou_resolution = 24\n[[targets]]\nname = "mug"\ngenerator = "dishes"\npreset = "mug"\n'
+                   '[[methods]]\nname = "scaled"\nmethod = "_scaled_target"\n')
 
-    def moved(task, settings, budget, seed):
-        target, _, _ = harness._target_mesh(str(exp.resolve()), "mug")
-        return Prediction(TriMesh(target.verts * 1.7 + torch.tensor([0.3, -0.2, 0.5], dtype=torch.float64),
-                                  target.faces), 1, 0.0)
+    def scaled(task, settings, budget, seed):
+        target = harness.load_target(str(exp.resolve()), "mug").mesh
+        return Prediction(scale_about(target, task.cameras[0].eye, factor), 1, 0.0)
 
-    METHODS["_moved_target"] = moved
+    METHODS["_scaled_target"] = scaled
     try:
-        row = harness.run_cell(str(exp.resolve()), load_experiment(exp).cells()[0], str(tmp_path / "out"))
+        out = tmp_path / "out"
+        return harness.run_cell(str(exp.resolve()), load_experiment(exp).cells()[0], str(out)), out
     finally:
-        del METHODS["_moved_target"]
+        del METHODS["_scaled_target"]
+
+
+def test_one_view_predictions_are_scaled_about_the_eye(tmp_path):
+    """Protocol v2, K = 1: the target scaled by 1.3 about the input camera's eye looks the same from that
+    camera; the alignment finds s = 1 / 1.3 and the scores are those of the target itself."""
+    row, out = _scaled_target_cell(tmp_path, 1, 1.3)
     assert row["status"] == "ok", row
-    assert row["heldout_iou"] > 0.999 and row["fscore@0.02"] == 1.0 and row["iou_3d"] > 0.99
-    saved = harness.mesh_path(tmp_path / "out", row["key"])
+    assert abs(row["align_scale"] * 1.3 - 1.0) < 0.01, row["align_scale"]
+    assert row["heldout_iou"] >= 0.99 and row["fscore@0.02"] > 0.99 and row["iou_3d"] > 0.97, row
+    # the stored mesh is the one scored (aligned, in the input cameras' frame): it lies on the target
     import trimesh
 
-    V = trimesh.load(saved, force="mesh", process=False).vertices
-    assert abs((V.max(0) - V.min(0)).max() - 2.0) < 1e-6 and abs(V.max(0) + V.min(0)).max() < 1e-6
+    from ipm.bench import harness
+
+    V = trimesh.load(harness.mesh_path(out, row["key"]), force="mesh", process=False).vertices
+    T = harness.load_target(str((tmp_path / "proj" / "experiments" / "e.toml").resolve()), "mug").mesh.verts.numpy()
+    assert np.abs(V - T).max() < 0.01
+
+
+def test_several_views_are_not_aligned(tmp_path):
+    """Protocol v2, K >= 2: nothing is rescaled, so a scaled prediction loses held-out IoU."""
+    row, _ = _scaled_target_cell(tmp_path, 2, 1.3)
+    assert row["status"] == "ok", row
+    assert row["align_scale"] == 1.0
+    assert row["heldout_iou"] < 0.8 and row["fscore@0.02"] < 0.5, row
+
+
+def test_target_normalization_is_the_unit_bounding_sphere(tmp_path):
+    from ipm.bench import harness
+
+    exp = tmp_path / "proj" / "experiments" / "e.toml"
+    exp.parent.mkdir(parents=True)
+    exp.write_text('name = "e"\n[[targets]]\nname = "b"\ngenerator = "building"\npreset = "panel5"\n'
+                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\n')
+    t = harness.load_target(str(exp.resolve()), "b")
+    V = t.mesh.verts.numpy()
+    assert abs(np.linalg.norm(V, axis=1).max() - 1.0) < 1e-12
+    assert np.abs(V.max(0) + V.min(0)).max() < 1e-12  # bounding-box center at the origin
+
+
+def test_a_clipped_target_is_refused_with_one_line(tmp_path, capsys):
+    """Cameras closer than the protocol's (distance 1.6) clip the unit sphere: the bench refuses the
+    target before any cell runs, with one line and exit code 2, and writes nothing."""
+    from ipm.cli import main
+
+    exp = tmp_path / "proj" / "experiments" / "e.toml"
+    exp.parent.mkdir(parents=True)
+    exp.write_text('name = "e"\nsize = 48\nheldout_size = 48\ndistance = 1.6\n[[targets]]\nname = "mug"\n'
+                   'generator = "dishes"\npreset = "mug"\n[[methods]]\nname = "vh"\nmethod = "visual-hull"\n')
+    out = tmp_path / "res"
+    with pytest.raises(SystemExit) as e:
+        main(["bench", str(exp), "-o", str(out)])
+    assert e.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "target mug" in err[0] and "touches the image border" in err[0], err
+    assert not (out / "rows.jsonl").exists()
+
+
+def test_rows_list_the_discrete_parts_the_input_views_hide(tmp_path):
+    """A mug whose handle points along the input camera's line of sight (azimuth 120 degrees: behind the
+    body from azimuth 30) hides it from one view, not from two orthogonal views."""
+    from ipm.bench import harness
+
+    exp = tmp_path / "proj" / "experiments" / "e.toml"
+    exp.parent.mkdir(parents=True)
+    exp.write_text('name = "e"\nviews = [1, 2]\nsize = 96\nheldout_size = 32\nsamples = 500\n'
+                   'iou_resolution = 16\n[[targets]]\nname = "mug"\ngenerator = "dishes"\npreset = "mug"\n'
+                   'params = { handle_azimuth = 120.0 }\n'
+                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nresolution = 24\n')
+    rows = {c.views: harness.run_cell(str(exp.resolve()), c) for c in load_experiment(exp).cells()}
+    assert rows[1]["hidden_discrete"] == {"has_handle": [0]}, rows[1]
+    assert rows[2]["hidden_discrete"] == {}, rows[2]
+    from ipm.bench.tables import hidden_markdown
+
+    text = hidden_markdown(list(rows.values()))
+    assert "- mug, 1 view: has_handle (also 0)" in text and "- mug, 2 views: none" in text, text

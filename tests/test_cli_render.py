@@ -191,3 +191,25 @@ def test_subprocess(tmp_path):
     assert bad.returncode == 2
     assert bad.stderr.strip().splitlines() == [bad.stderr.strip()] and bad.stderr.startswith("ipm: error: ")
     assert not (tmp_path / "x").exists()
+
+
+def test_render_normalizes_to_the_unit_sphere_and_warns_when_a_view_clips(tmp_path, capsys, caplog):
+    """``--normalize`` (the default) keeps the object inside every protocol view (protocol v2); a mesh in
+    file units that the views clip is rendered, with a warning naming the clipped views."""
+    import logging
+
+    import trimesh
+
+    from ipm.metrics import touches_border
+
+    code, _, err = run(["render", real_path(MUG), "--up", "z", "--views", "4", "--size", "64", "--no-previews",
+                        "-o", tmp_path / "ok"], capsys)
+    assert code == 0, err
+    assert not any(touches_border(m) for m in load_mask_set(tmp_path / "ok").masks.numpy() > 0.5)
+    big = tmp_path / "big.ply"
+    trimesh.creation.box((3.0, 3.0, 3.0)).export(big)
+    with caplog.at_level(logging.WARNING, logger="ipm"):
+        code, _, err = run(["render", big, "--no-normalize", "--views", "2", "--size", "32", "--no-previews",
+                            "-o", tmp_path / "big"], capsys)
+    assert code == 0, err
+    assert "touches the image border in views 0, 1" in caplog.text

@@ -74,8 +74,9 @@ def test_bsp_and_sdftree_round_trip(tmp_path, meshes, capsys, one_thread, to):
     assert code == 0, err
     a, b = trimesh.load(poly, process=False), trimesh.load(back, process=False)
     assert a.is_watertight and b.is_watertight
-    # normalized: longest side 2, so the box is 2 x 1.2 x 1.6
-    assert a.volume == pytest.approx(2 * 1.2 * 1.6, rel=0.01) and b.volume == pytest.approx(a.volume, rel=0.03)
+    # normalized to the unit bounding sphere: the 1 x 0.6 x 0.8 box (diagonal sqrt(2)) scaled by 2 / sqrt(2)
+    k = 2 / np.sqrt(2.0)
+    assert a.volume == pytest.approx(0.48 * k**3, rel=0.01) and b.volume == pytest.approx(a.volume, rel=0.03)
     if to == "bsp":
         assert len(a.faces) == 12 and len(b.faces) == 12        # the exact polytope: a box is 12 triangles
 

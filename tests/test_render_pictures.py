@@ -98,9 +98,10 @@ def test_load_mesh_z_up_and_normalize():
     mesh = load_mesh(real_path("vessels/ocrtoc_mug.ply"), up="z")
     lo, hi = mesh.verts.amin(0), mesh.verts.amax(0)
     assert torch.allclose((lo + hi) / 2, torch.zeros(3, dtype=torch.float64), atol=1e-12)
-    assert float((hi - lo).max()) == pytest.approx(2.0)
-    # Z-up height became the Y extent
-    assert float((hi - lo)[1]) == pytest.approx(2.0 * float(ext[2]) / float(ext.max()), rel=1e-9)
+    # the unit bounding sphere (protocol v2): the farthest vertex at distance 1
+    assert float(torch.linalg.vector_norm(mesh.verts, dim=1).max()) == pytest.approx(1.0, abs=1e-12)
+    # Z-up height became the Y extent (proportions kept)
+    assert float((hi - lo)[1] / (hi - lo).max()) == pytest.approx(float(ext[2]) / float(ext.max()), rel=1e-9)
     v = torch.tensor([[1.0, 2.0, 3.0]])
     assert to_y_up(v, "z").tolist() == [[1.0, 3.0, -2.0]]
 

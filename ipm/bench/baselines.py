@@ -36,7 +36,7 @@ views once and computes the loss and its gradient, which is what one evaluation 
 equal numbers of steps; ``info["view_renders"] = steps · K`` counts the single-view renders.
 
 Priors (DESIGN.md asks fits to say so): the object lies inside ``[-extent, extent]³`` (the protocol
-normalizes targets to a bounding box of longest side 2 at the origin, extent 1.2 leaves a margin), and
+normalizes targets to the unit bounding sphere at the origin, extent 1.2 leaves a margin), and
 the visual hull of the masks seeds the shape (both methods) or is the initial shape (``sdf-grid`` with
 ``init = "hull"``). No randomness is involved: the seed does not change the result.
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ipm.bench.config import Experiment
-from ipm.bench.harness import _target_mesh, mesh_path
+from ipm.bench.harness import load_target, mesh_path
 
 SHEET_VIEW = 1  # held-out view 1: azimuth 33.75°, elevation 40° (never an input view)
 
@@ -41,7 +41,7 @@ def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict]
     from ipm.types import TriMesh
     from ipm.viz.sheet import contact_sheet
 
-    cam = heldout_views(size)[SHEET_VIEW]
+    cam = heldout_views(size, exp.distance)[SHEET_VIEW]
     out = []
     for t in exp.targets:
         chosen = sheet_cells(exp, rows, t.name)
@@ -55,7 +55,7 @@ def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict]
             continue
         if not cells:
             continue
-        target, _, _ = _target_mesh(str(Path(exp_path).resolve()), t.name)
+        target = load_target(str(Path(exp_path).resolve()), t.name).mesh
         pictures, labels = [render_preview(target, cam, size=size)], [f"{t.name} (target)"]
         for r in cells:
             tm = trimesh.load(mesh_path(out_dir, r["key"]), force="mesh", process=False)

@@ -13,6 +13,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
@@ -20,16 +21,30 @@ import numpy as np
 import torch
 
 from ipm.bench.config import Cell, Experiment, load_experiment
+from ipm.bench.protocol import align_scale, check_border, hidden_discrete, render_masks, scale_about
 from ipm.types import TriMesh
 
 log = logging.getLogger(__name__)
 ROWS = "rows.jsonl"
 
 
-@lru_cache(maxsize=16)
-def _target_mesh(exp_path: str, name: str) -> tuple[TriMesh, dict | None, str | None]:
-    """The normalized target mesh, and for generator samples their parameters and generator name."""
-    from ipm.metrics import normalize_vertices
+@dataclass(frozen=True)
+class BenchTarget:
+    """A target in the protocol's frame (DESIGN.md v2: unit bounding sphere about the bounding-box center).
+
+    frame: the ``(center, scale)`` that took the source to that frame; truth and generator: a generator
+    sample's parameters and generator name (None for a mesh file)."""
+
+    mesh: TriMesh
+    frame: tuple[np.ndarray, float]
+    truth: dict | None = None
+    generator: str | None = None
+
+
+@lru_cache(maxsize=32)
+def load_target(exp_path: str, name: str) -> BenchTarget:
+    """The normalized target ``name`` of the experiment file ``exp_path``."""
+    from ipm.metrics import unit_sphere_frame
 
     exp = load_experiment(exp_path)
     t = exp.target(name)
@@ -51,13 +66,55 @@ def _target_mesh(exp_path: str, name: str) -> tuple[TriMesh, dict | None, str | 
         m = gen.to_mesh(values)
         V, F = m.verts.detach().double().numpy(), m.faces.numpy()
         truth, gen_name = values, gen.name
-    return TriMesh(torch.as_tensor(normalize_vertices(V)), torch.as_tensor(F)), truth, gen_name
+    center, scale = unit_sphere_frame(V[np.unique(F)])
+    mesh = TriMesh(torch.as_tensor((V - center) * scale), torch.as_tensor(F))
+    return BenchTarget(mesh, (center, scale), truth, gen_name)
 
 
-def _masks(mesh: TriMesh, cams) -> np.ndarray:
-    from ipm.render.raster import rasterize_mesh
+def _input_cameras(exp: Experiment, k: int):
+    from ipm.render.camera import input_views
 
-    return np.stack([rasterize_mesh(mesh, c).mask.cpu().numpy().astype(bool) for c in cams])
+    return input_views(k, exp.size, exp.distance)
+
+
+def _heldout_cameras(exp: Experiment):
+    from ipm.render.camera import heldout_views
+
+    return heldout_views(exp.heldout_size, exp.distance)
+
+
+@lru_cache(maxsize=64)
+def target_masks(exp_path: str, name: str, views: int | None) -> np.ndarray:
+    """The exact masks (K, H, W) of target ``name`` in the K protocol input views (``views=None``: the 16
+    held-out views). Raises ``ValueError`` when one touches the image border (:func:`check_border`)."""
+    exp = load_experiment(exp_path)
+    cams = _heldout_cameras(exp) if views is None else _input_cameras(exp, views)
+    masks = render_masks(load_target(exp_path, name).mesh, cams)
+    what = "held-out" if views is None else f"{views}-view input"
+    check_border(masks, f"{exp_path}: target {name}, {what} views")
+    return masks
+
+
+def check_targets(exp_path: str, exp: Experiment) -> None:
+    """Render every target in every input view set a cell will show it and in the held-out views, and
+    refuse (``ValueError``) any that the views clip, before a single cell runs."""
+    views: dict[str, set[int]] = {}
+    for c in exp.cells():
+        views.setdefault(c.target, set()).add(c.views)
+    for name, ks in views.items():
+        target_masks(exp_path, name, None)
+        for k in sorted(ks):
+            target_masks(exp_path, name, k)
+
+
+@lru_cache(maxsize=64)
+def _hidden(exp_path: str, name: str, views: int) -> dict:
+    from ipm.generators import get_generator
+
+    exp = load_experiment(exp_path)
+    t = load_target(exp_path, name)
+    return hidden_discrete(get_generator(t.generator), t.truth, t.frame, _input_cameras(exp, views),
+                           target_masks(exp_path, name, views))
 
 
 def param_error(pred: dict, truth: dict, gen_name: str) -> dict:
@@ -72,51 +129,61 @@ def param_error(pred: dict, truth: dict, gen_name: str) -> dict:
 
 
 def mesh_path(out_dir: str | Path, key: str) -> Path:
-    """Where a cell's predicted mesh (normalized as the protocol scores it) is kept: ``meshes/<key>.ply``."""
+    """Where a cell's predicted mesh (in the frame it was scored in) is kept: ``meshes/<key>.ply``."""
     return Path(out_dir) / "meshes" / (key.replace("|", "__") + ".ply")
 
 
 def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
-    """Run one cell and score it (DESIGN.md's protocol). Safe to call in a fresh process.
+    """Run one cell and score it (DESIGN.md's protocol v2). Safe to call in a fresh process.
 
-    The prediction is normalized like the target (bounding-box center at the origin, longest side 2)
-    before every score, held-out silhouettes included; with ``out_dir`` it is also written to
-    :func:`mesh_path` (for the contact sheets).
+    The prediction is scored where the method placed it, in the frame of the input cameras; with one
+    view it is first scaled about the input camera's eye by the factor that minimizes Chamfer-L1
+    (:func:`ipm.bench.protocol.align_scale`, recorded as ``align_scale``; 1.0 for K >= 2, which are not
+    aligned). With ``out_dir`` the scored mesh is written to :func:`mesh_path`, so anyone can re-score
+    it. Rows of generator samples list the discrete parameters the input views hide
+    (``hidden_discrete``, :func:`ipm.bench.protocol.hidden_discrete`).
     """
     from ipm.bench.methods import METHODS, Task
     from ipm.io.export import export_mesh
-    from ipm.io.meshes import normalize_mesh
     from ipm.metrics import mask_iou, shape_scores
-    from ipm.render.camera import heldout_views, input_views
 
     torch.set_num_threads(1 if os.environ.get("IPM_BENCH_WORKER") else torch.get_num_threads())
+    exp_path = str(exp_path)
     exp = load_experiment(exp_path)
     spec = exp.method(cell.method)
-    target, truth, gen_name = _target_mesh(str(exp_path), cell.target)
-    cams = input_views(cell.views, exp.size)
-    task = Task(_masks(target, cams), cams)
+    target = load_target(exp_path, cell.target)
+    cams = _input_cameras(exp, cell.views)
+    task = Task(target_masks(exp_path, cell.target, cell.views), cams)
     t0 = time.perf_counter()
     row = {"target": cell.target, "method": cell.method, "views": cell.views, "seed": cell.seed, "key": cell.key}
+    settings = spec.settings_for(exp.target(cell.target))
     try:
-        pred = METHODS[spec.method](task, dict(spec.settings), exp.budget, cell.seed)
+        pred = METHODS[spec.method](task, settings, exp.budget, cell.seed)
     except ValueError as e:
         row.update(status="failed", error=str(e), wall_time_s=round(time.perf_counter() - t0, 3))
         return row
-    try:
-        pred_mesh = normalize_mesh(pred.mesh)
-    except ValueError as e:
-        row.update(status="failed", error=f"prediction: {e}", wall_time_s=round(time.perf_counter() - t0, 3))
+    mesh = TriMesh(pred.mesh.verts.detach().double(), pred.mesh.faces)
+    if mesh.n_faces == 0:
+        row.update(status="failed", error="prediction: an empty mesh", wall_time_s=round(pred.wall_time_s, 3))
         return row
+    scale = 1.0
+    if cell.views == 1:
+        scale = align_scale(mesh, target.mesh, cams[0].eye, seed=cell.seed).scale
+        mesh = scale_about(mesh, cams[0].eye, scale)
+    row["align_scale"] = scale
     if out_dir is not None:
-        export_mesh(TriMesh(pred_mesh.verts.double(), pred_mesh.faces), mesh_path(out_dir, cell.key), sidecar=False)
-    held = heldout_views(exp.heldout_size)
-    p_masks, t_masks = _masks(pred_mesh, held), _masks(target, held)
+        export_mesh(mesh, mesh_path(out_dir, cell.key), sidecar=False)
+    p_masks = render_masks(mesh, _heldout_cameras(exp))
+    t_masks = target_masks(exp_path, cell.target, None)
     row["heldout_iou"] = float(np.mean([mask_iou(a, b) for a, b in zip(p_masks, t_masks)]))
-    s = shape_scores(pred_mesh, target, n=exp.samples, seed=cell.seed, resolution=exp.iou_resolution)
+    s = shape_scores(mesh, target.mesh, n=exp.samples, seed=cell.seed, resolution=exp.iou_resolution,
+                     normalize=False)
     row.update(s.to_json())
     row.update(status="ok", evaluations=pred.evaluations, wall_time_s=round(pred.wall_time_s, 3))
-    if truth is not None and "params" in pred.info and spec.settings.get("generator") == gen_name:
-        row.update(param_error(pred.info["params"], truth, gen_name))
+    if target.truth is not None:
+        row["hidden_discrete"] = _hidden(exp_path, cell.target, cell.views)
+        if "params" in pred.info and settings.get("generator") == target.generator:
+            row.update(param_error(pred.info["params"], target.truth, target.generator))
     return row
 
 
@@ -148,6 +215,7 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
     todo = [c for c in exp.cells() if c.key not in finished]
     if dry_run:
         return [{"key": c.key, "status": "todo"} for c in todo]
+    check_targets(exp_path, exp)
     out.mkdir(parents=True, exist_ok=True)
     rows = list(done)
     if done:  # drop a torn last line before appending

@@ -45,14 +45,22 @@ class Prediction:
 
 @method("ipm")
 def ipm_fit(task: Task, settings: dict, budget: int, seed: int) -> Prediction:
-    """Fit a generator (``generator``; optional ``preset``, ``discrete``, ``camera``, ``lr``, ...)."""
+    """Fit a generator (``generator``; optional ``preset``, ``discrete``, ``camera``, ``lr``, ...; any
+    :class:`~ipm.optim.fit.FitSettings` field). ``max_size``: box-filter the masks to at most this many
+    pixels a side first, as the baselines do (:func:`ipm.bench.baselines.fit_views`; default: full size)."""
     from ipm.generators import get_generator
     from ipm.optim.fit import FitSettings, MaskTarget, run_fit
 
     s = dict(settings)
     gen = get_generator(s.pop("generator"))
-    masks = torch.as_tensor(task.masks, dtype=torch.float32)
-    cams = [c.to(torch.float32) for c in task.cameras]
+    max_size = s.pop("max_size", None)
+    if max_size is not None:
+        from ipm.bench.baselines import fit_views
+
+        masks, cams = fit_views(task.masks, task.cameras, int(max_size), torch.float32)
+    else:
+        masks = torch.as_tensor(task.masks, dtype=torch.float32)
+        cams = [c.to(torch.float32) for c in task.cameras]
     t0 = time.perf_counter()
     res, prob, best = run_fit(gen, MaskTarget(masks, cams), FitSettings(budget=budget, seed=seed, **s))
     mesh = prob.mesh_world(best["x"].to(torch.float64), best["discrete"]).detach()

@@ -1,4 +1,5 @@
-"""Tables from bench rows: mean ± std over seeds, best per column in bold; Markdown, CSV and LaTeX."""
+"""Tables from bench rows: mean ± std over seeds, best per column in bold; Markdown, CSV and LaTeX; and
+means per class of target (a class's mean is over its targets of each target's mean over seeds)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,13 @@ from collections import defaultdict
 
 import numpy as np
 
-# (row key, column title, higher is better)
+# (row key, column title, higher is better; None: no best)
 METRICS = [("heldout_iou", "held-out IoU", True), ("fscore@0.02", "F@0.02", True), ("fscore@0.05", "F@0.05", True),
            ("chamfer_l1", "Chamfer-L1", False), ("iou_3d", "3D IoU", True), ("param_error", "param. error", False),
-           ("discrete_accuracy", "discrete acc.", True), ("wall_time_s", "time (s)", False),
-           ("evaluations", "evals", False)]
+           ("discrete_accuracy", "discrete acc.", True), ("align_scale", "scale about the eye (K = 1)", None),
+           ("wall_time_s", "time (s)", False), ("evaluations", "evals", False)]
+# the metrics given per class
+CLASS_METRICS = ("heldout_iou", "fscore@0.02", "fscore@0.05", "chamfer_l1", "iou_3d")
 
 
 def aggregate(rows: list[dict]) -> dict:
@@ -46,7 +49,9 @@ def table(rows: list[dict], metric: str = "heldout_iou") -> tuple[list[str], lis
     return header, body, values
 
 
-def _bold_best(body, values, higher: bool, fmt):
+def _bold_best(body, values, higher: bool | None, fmt):
+    if higher is None:
+        return body
     arr = np.array(values, dtype=float) if values else np.zeros((0, 0))
     for j in range(arr.shape[1] if arr.size else 0):
         col = arr[:, j]
@@ -59,19 +64,120 @@ def _bold_best(body, values, higher: bool, fmt):
     return body
 
 
+def class_table(rows: list[dict], classes: dict[str, str], metric: str = "heldout_iou"
+                ) -> tuple[list[str], list[list[str]], list[list[float]]]:
+    """Rows = method × views, columns = classes (``classes``: target -> class), cells = the mean over the
+    class's targets of each target's mean over seeds; a cell over only some of the class's targets says
+    how many (``0.912 (2/3)``) and has the value NaN (it is not compared with whole classes)."""
+    agg = aggregate(rows)
+    members: dict[str, list[str]] = defaultdict(list)
+    for t, c in classes.items():
+        members[c].append(t)
+    names = sorted(members)
+    lines = sorted({(g[0], g[1]) for g in agg})
+    body, values = [], []
+    for m, k in lines:
+        cells, vals = [m, str(k)], []
+        for c in names:
+            got = [agg[(m, k, t)][metric][0] for t in members[c] if metric in agg.get((m, k, t), {})]
+            if not got:
+                cells.append("-")
+                vals.append(np.nan)
+                continue
+            v = float(np.mean(got))
+            whole = len(got) == len(members[c])
+            cells.append(f"{v:.3f}" + ("" if whole else f" ({len(got)}/{len(members[c])})"))
+            vals.append(v if whole else np.nan)  # a mean over part of a class does not compete
+        body.append(cells)
+        values.append(vals)
+    return ["method", "views"] + names, body, values
+
+
+def _section(title: str, higher: bool | None, header, body, values) -> list[str]:
+    """A Markdown table with the best value (not NaN) per column in bold, rows without any cell dropped."""
+    keep = [i for i, b in enumerate(body) if any(c != "-" for c in b[2:])]
+    if not keep:
+        return []
+    body, values = [body[i] for i in keep], [values[i] for i in keep]
+    body = _bold_best([list(b) for b in body], values, higher, lambda s: f"**{s}**")
+    sense = "" if higher is None else f" ({'higher' if higher else 'lower'} is better)"
+    return ([f"### {title}{sense}", "", "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+            + ["| " + " | ".join(b) + " |" for b in body] + [""])
+
+
+def class_markdown(rows: list[dict], classes: dict[str, str]) -> str:
+    """The per-class tables of :data:`CLASS_METRICS` (empty when no target has a class)."""
+    if not classes:
+        return ""
+    out = []
+    for key, title, higher in METRICS:
+        if key in CLASS_METRICS:
+            out += _section(f"{title} per class, mean over its targets", higher, *class_table(rows, classes, key))
+    return "\n".join(out)
+
+
+def class_summary(rows: list[dict], classes: dict[str, str], fits: set[str], *, reference_views: int = 12,
+                  metric: str = "heldout_iou") -> str:
+    """Per class and K: the generator fit (methods in ``fits``) against the best other method at the same
+    K and at ``reference_views``, with the gaps, as a Markdown table (empty without classes or fits).
+
+    Only methods with a value on every target of the class compete (no mean over a subset)."""
+    if not classes or not fits:
+        return ""
+    header, body, values = class_table(rows, classes, metric)
+    names, full = header[2:], values
+    lines = ["| class | K | generator fit | best other, same K | gap | best other, "
+             f"{reference_views} views | gap |", "|---|---|---|---|---|---|---|"]
+
+    def best(j: int, k: int) -> tuple[float, str]:
+        cand = [(full[i][j], b[0]) for i, b in enumerate(body)
+                if b[0] not in fits and int(b[1]) == k and not np.isnan(full[i][j])]
+        return max(cand) if cand else (np.nan, "-")
+
+    def cell(v: float, who: str) -> str:
+        return "-" if np.isnan(v) else f"{v:.3f} ({who})"
+
+    def gap(a: float, b: float) -> str:
+        return "-" if np.isnan(a) or np.isnan(b) else f"{a - b:+.3f}"
+
+    for j, c in enumerate(names):
+        for i, b in enumerate(body):
+            if b[0] not in fits or np.isnan(full[i][j]):
+                continue
+            k, v = int(b[1]), full[i][j]
+            same, ref = best(j, k), best(j, reference_views)
+            lines.append(f"| {c} | {k} | {v:.3f} ({b[0]}) | {cell(*same)} | {gap(v, same[0])} | "
+                         f"{cell(*ref)} | {gap(v, ref[0])} |")
+    return "\n".join(lines) + "\n" if len(lines) > 2 else ""
+
+
+def hidden_markdown(rows: list[dict]) -> str:
+    """Which discrete parts of generator samples the input views hide (DESIGN.md: tables say so), one line
+    per target and number of views; empty when no row knows (real meshes)."""
+    seen: dict[tuple[str, int], dict] = {}
+    for r in rows:
+        if r.get("status") == "ok" and "hidden_discrete" in r:
+            seen.setdefault((r["target"], r["views"]), r["hidden_discrete"])
+    if not seen:
+        return ""
+    from ipm.bench.protocol import HIDDEN_TOLERANCE
+
+    lines = ["### Discrete parts the input views hide", "",
+             "A discrete parameter is listed when a neighbouring value draws the same input masks (within "
+             f"{100 * HIDDEN_TOLERANCE:g} % of the target's pixels): no method can tell it from the views.", ""]
+    for (t, k), hidden in sorted(seen.items()):
+        what = ", ".join(f"{n} (also {', '.join(map(str, v))})" for n, v in sorted(hidden.items())) or "none"
+        lines.append(f"- {t}, {k} view{'s' if k > 1 else ''}: {what}")
+    return "\n".join(lines) + "\n"
+
+
 def markdown(rows: list[dict]) -> str:
     out = []
     for key, title, higher in METRICS:
-        header, body, values = table(rows, key)
-        if not body or all(all(np.isnan(v) for v in r) for r in values):
-            continue
-        keep = [i for i, r in enumerate(values) if not all(np.isnan(v) for v in r)]  # rows with a value
-        body, values = [body[i] for i in keep], [values[i] for i in keep]
-        body = _bold_best([list(b) for b in body], values, higher, lambda s: f"**{s}**")
-        out += [f"### {title} ({'higher' if higher else 'lower'} is better)", "",
-                "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-        out += ["| " + " | ".join(b) + " |" for b in body]
-        out.append("")
+        out += _section(title, higher, *table(rows, key))
+    hidden = hidden_markdown(rows)
+    if hidden:
+        out.append(hidden)
     failed = [r for r in rows if r.get("status") != "ok"]
     if failed:
         out += ["### Failed cells", ""] + [f"- {r['key']}: {r.get('error', '')}" for r in failed] + [""]

@@ -28,7 +28,7 @@ def register(app: typer.Typer) -> None:
         import ipm
         from ipm.bench.config import load_experiment
         from ipm.bench.harness import run_experiment
-        from ipm.bench.tables import csv_text, latex, markdown
+        from ipm.bench.tables import class_markdown, class_summary, csv_text, latex, markdown
         from ipm.io.atomic import write_text
 
         if workers < 1:
@@ -56,17 +56,29 @@ def register(app: typer.Typer) -> None:
         write_text(out / "table.tex", latex(rows))
         import torch
 
+        classes = {t.name: t.cls for t in exp.targets if t.cls}
+        fits = {m.name for m in exp.methods if m.method == "ipm"}
+        summary = class_summary(rows, classes, fits, reference_views=max(c.views for c in exp.cells()))
+        by_class = class_markdown(rows, classes)
         readme = "\n".join([
             f"# {exp.name}", "",
             f"Command: `ipm bench {experiment}{' -o ' + str(output) if output else ''}`  ",
             f"Date: {dt.datetime.now(dt.UTC).isoformat(timespec='seconds')}  ",
             f"Machine: {platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores  ",
             f"Versions: ipm {ipm.__version__}, torch {torch.__version__}, Python {platform.python_version()}", "",
-            f"Protocol: DESIGN.md (inputs {exp.size} px, 16 held-out views at {exp.heldout_size} px, "
-            f"budget {exp.budget} evaluations, seeds {list(exp.seeds)}).", "",
-            "Contact sheets (target, then each method's result from held-out view 1, normalized as scored): "
+            f"Protocol: DESIGN.md v2 (targets in the unit bounding sphere, inputs {exp.size} px, 16 held-out "
+            f"views at {exp.heldout_size} px, camera distance {exp.distance:g}, predictions scored where the "
+            f"method placed them, K = 1 scaled about the eye; budget {exp.budget} evaluations, seeds "
+            f"{list(exp.seeds)}).", "",
+            "Contact sheets (target, then each method's result from held-out view 1, as scored): "
             + (", ".join(f"[{p.name}]({p.name})" for p in sheets) or "none") + ".", "",
             *([exp.notes, ""] if exp.notes else []),
+            *(["## Per class", "", "Held-out IoU of the generator fits against the best other method "
+               "(classes: " + ", ".join(f"{c}: {', '.join(sorted(t for t, k in classes.items() if k == c))}"
+                                        for c in sorted(set(classes.values()))) + ").", "", summary]
+              if summary else []),
+            *([by_class, ""] if by_class else []),
+            *(["## Per target", ""] if by_class else []),
             markdown(rows)])
         write_text(out / "README.md", readme + "\n")
         if not json_out:

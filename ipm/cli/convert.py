@@ -1,7 +1,7 @@
 """``ipm convert MESH --to bsp|perturb|sdftree ... -o OUT.json``: a mesh into a universal representation.
 
 The result file loads back with ``ipm generate OUT.json`` (and ``get_generator``). The mesh is
-normalized first (DESIGN.md: up axis, bounding-box center at the origin, longest side 2); the file's
+normalized first (DESIGN.md: up axis, bounding-box center at the origin, farthest vertex at 1); the file's
 ``frame`` says how to undo it.
 """
 

@@ -113,8 +113,9 @@ def register(app: typer.Typer) -> None:
         seed: SeedOpt = 0,
         up: Annotated[str, typer.Option(help="up axis of a mesh file: y or z (converted to Y up)")] = "y",
         normalize: Annotated[bool, typer.Option("--normalize/--no-normalize",
-                                                help="center the bounding box and scale its longest side "
-                                                     "to 2 (the evaluation protocol)")] = True,
+                                                help="bounding-box center to the origin, farthest vertex at "
+                                                     "distance 1 (the evaluation protocol's unit bounding "
+                                                     "sphere)")] = True,
         views: Annotated[int | None, typer.Option(
             help="K protocol input views: FOV 40, distance 3.2, elevation 25, azimuths 30 + k 360/K "
                  "[default: 4]")] = None,
@@ -158,11 +159,18 @@ def register(app: typer.Typer) -> None:
             if preview_views:
                 pictures.append(shade_fragments(fr, cam, mesh))
         empty = [i for i, m in enumerate(rendered) if not m.any()]
-        if empty:
-            import logging
+        import logging
 
+        if empty:
             logging.getLogger("ipm").warning("the object is outside views %s: their masks are empty",
                                              ", ".join(map(str, empty)))
+        from ipm.metrics import touches_border
+
+        clipped = [i for i, m in enumerate(rendered) if m.any() and touches_border(m)]
+        if clipped:
+            logging.getLogger("ipm").warning("the object touches the image border in views %s: a fit cannot "
+                                             "see where it ends (use --normalize or move the cameras out)",
+                                             ", ".join(map(str, clipped)))
         with staged_directory(output) as tmp:
             save_mask_set(tmp, rendered, cams)
             for i, pic in enumerate(pictures):

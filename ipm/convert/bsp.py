@@ -318,7 +318,7 @@ def fit_bsp(mesh, *, planes: int = 16, convexes: int = 4, steps: int = 300, rela
     samples: occupancy samples (half uniform, half near the surface); batch: samples per step; prune_tol: share of the
     samples a removal may misclassify; overlap: weight of the stage-2 overlap penalty; binarize: final
     weight of the stage-1 ``T (1 - T)`` penalty. The mesh is normalized first (bounding-box center at
-    the origin, longest side 2); the result lives in that frame (``data["frame"]`` says how).
+    the origin, farthest vertex at distance 1); the result lives in that frame (``data["frame"]`` says how).
 
     Returns a :class:`~ipm.convert.common.Conversion` whose generator is a stage-2 (binary)
     :class:`BspGenerator`; ``stats`` holds ``convexes`` and ``planes`` (those the polytope uses),

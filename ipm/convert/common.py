@@ -18,7 +18,8 @@ Progress = Callable[[int, int, dict], None]
 
 @dataclass(frozen=True)
 class Target:
-    """A conversion target in the normalized frame (bounding-box center at the origin, longest side 2).
+    """A conversion target in the protocol's frame (bounding-box center at the origin, farthest vertex at
+    distance 1: DESIGN.md v2).
 
     verts: (V, 3) float64, welded (texture seams merged) and only those used by a face
     faces: (F, 3) int64, zero-area triangles dropped, counter-clockwise seen from outside
@@ -75,7 +76,7 @@ def as_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
 def prepare(mesh) -> Target:
     """Check, weld, clean and normalize a target mesh; ``ValueError`` ("expected ..., got ...") if it has
     no faces, non-finite or out-of-range indices, or no area."""
-    from ipm.metrics import normalize_vertices
+    from ipm.metrics import unit_sphere_frame
 
     V, F = as_arrays(mesh)
     if len(F) == 0:
@@ -85,11 +86,11 @@ def prepare(mesh) -> Target:
     if not np.isfinite(V).all():
         raise ValueError("expected finite vertex coordinates, got NaN or inf")
     used = np.unique(F)
-    lo, hi = V[used].min(0), V[used].max(0)
-    size = float((hi - lo).max())
-    if not size > 0:
-        raise ValueError("expected a mesh with a nonzero extent, got all vertices at one point")
-    Vn = normalize_vertices(V[used])
+    try:
+        center, scale = unit_sphere_frame(V[used])
+    except ValueError:
+        raise ValueError("expected a mesh with a nonzero extent, got all vertices at one point") from None
+    Vn = (V[used] - center) * scale
     Vall = np.zeros_like(V)
     Vall[used] = Vn
     # weld texture seams: equal positions (to 1e-9 of the size) become one vertex
@@ -108,8 +109,7 @@ def prepare(mesh) -> Target:
     Fc = Fc.reshape(-1, 3).astype(np.int64)
     if _signed_volume(Vc, Fc) < 0:       # inside-out files: make the faces face outwards
         Fc = Fc[:, ::-1].copy()
-    return Target(np.ascontiguousarray(Vc), np.ascontiguousarray(Fc), vertex_normals(Vc, Fc),
-                  0.5 * (lo + hi), 2.0 / size)
+    return Target(np.ascontiguousarray(Vc), np.ascontiguousarray(Fc), vertex_normals(Vc, Fc), center, scale)
 
 
 def _signed_volume(V: np.ndarray, F: np.ndarray) -> float:

@@ -1,7 +1,7 @@
 """Mesh -> perturbation functions (:mod:`ipm.generators.perturb`), after Vyatkin, Romanyuk and Velichko's
 iterative approximation of polygonal models by implicit functions.
 
-Samples. The target (normalized: bounding-box center at the origin, longest side 2; texture seams
+Samples. The target (normalized: bounding-box center at the origin, farthest vertex at 1; texture seams
 welded) gives on-surface samples ``v`` (its vertices and one random point per face, with unit normals
 ``n``), where ``F`` should be 0 and ``grad F = n``; the offsets ``v +- eps n``, where ``F`` should be
 ``+-eps``; and volume samples ``x`` (uniform over the target's box and the base quadric's), with the

@@ -1,8 +1,9 @@
 """Loading target meshes: read with trimesh, convert the up axis to Y, normalize (DESIGN.md's protocol).
 
-The evaluation protocol normalizes every target: up axis first, then the bounding box's center goes to
-the origin and its longest side becomes 2. Vertex order is kept (``process=False``); scenes (GLB) are
-flattened into one mesh with their transforms applied.
+The evaluation protocol (v2) normalizes every target: up axis first, then the bounding box's center goes
+to the origin and one uniform scale puts the farthest vertex at distance 1 (the unit bounding sphere).
+Vertex order is kept (``process=False``); scenes (GLB) are flattened into one mesh with their transforms
+applied.
 """
 
 from __future__ import annotations
@@ -42,19 +43,19 @@ def to_y_up(verts: torch.Tensor, up: str) -> torch.Tensor:
 
 
 def normalize_mesh(mesh: TriMesh) -> TriMesh:
-    """Bounding-box center to the origin and longest side 2 (the evaluation protocol).
+    """The mesh in the evaluation protocol's frame: bounding-box center at the origin, farthest vertex
+    at distance 1 (both over the vertices that faces use; :func:`ipm.metrics.unit_sphere_frame`).
 
-    Raises ``ValueError`` for an empty mesh or one whose bounding box has zero extent.
+    Raises ``ValueError`` for an empty mesh or one whose vertices are all at one point.
     """
+    from ipm.metrics import unit_sphere_frame
+
     if mesh.n_verts == 0 or mesh.n_faces == 0:
         raise ValueError(f"normalize: expected a mesh with faces, got {mesh.n_verts} vertices and "
                          f"{mesh.n_faces} faces")
-    used = mesh.verts[torch.unique(mesh.faces)]
-    lo, hi = used.amin(0), used.amax(0)
-    size = float((hi - lo).max())
-    if not size > 0:
-        raise ValueError("normalize: expected a mesh with a nonzero extent, got all vertices at one point")
-    verts = (mesh.verts - (lo + hi) / 2) * (2.0 / size)
+    used = mesh.verts[torch.unique(mesh.faces)].detach().cpu().double().numpy()
+    center, scale = unit_sphere_frame(used)
+    verts = (mesh.verts - torch.as_tensor(center, dtype=mesh.verts.dtype, device=mesh.verts.device)) * scale
     return TriMesh(verts, mesh.faces, mesh.groups, mesh.group_names)
 
 
@@ -69,8 +70,8 @@ def load_mesh(path: str | Path, *, up: str = "y", normalize: bool = True,
               dtype: torch.dtype = torch.float64) -> TriMesh:
     """Read a mesh file (.ply, .obj, .stl, .glb, .gltf, .off) as a Y-up :class:`~ipm.types.TriMesh`.
 
-    up: the file's up axis ("y" or "z"); normalize: center the bounding box and scale its longest
-    side to 2. Raises ``ValueError`` ("expected ..., got ...") for a missing or unreadable file, an
+    up: the file's up axis ("y" or "z"); normalize: to the protocol's unit bounding sphere
+    (:func:`normalize_mesh`). Raises ``ValueError`` ("expected ..., got ...") for a missing or unreadable file, an
     unknown format, or a mesh without triangles or area.
     """
     import trimesh

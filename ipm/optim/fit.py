@@ -8,8 +8,8 @@ The optimizer works on one normalized vector ``x`` in [0, 1]^m and a dict of dis
         | camera (with ``camera="fit"``): elevation, distance, vertical field of view ]
 
 The generator's output is first brought to the normalized frame of DESIGN.md (bounding-box center at
-the origin, longest side 2, measured once on the starting shape), then posed. One evaluation is one
-render of every view plus the loss (or, for a mesh target, one loss).
+the origin, farthest vertex at distance 1, measured once on the starting shape), then posed. One
+evaluation is one render of every view plus the loss (or, for a mesh target, one loss).
 """
 
 from __future__ import annotations
@@ -308,9 +308,10 @@ class Problem:
 
     # -- geometry --------------------------------------------------------------------------------
     def frame(self, discrete: Mapping[str, int]) -> tuple[torch.Tensor, float]:
-        """Center (3,) and longest side of the shape with these discrete values at the starting
-        continuous values. It depends on the discrete values only, so that a search that changes a
-        count (floors, boxes) starts that candidate at the right size, and replays stay exact."""
+        """Bounding-box center (3,) and bounding-sphere diameter about it of the shape with these discrete
+        values at the starting continuous values. It depends on the discrete values only, so that a search
+        that changes a count (floors, boxes) starts that candidate at the right size, and replays stay
+        exact."""
         d = {**self.d0, **discrete}
         key = tuple(sorted(d.items()))
         if key not in self._frames:
@@ -321,7 +322,10 @@ class Problem:
             if len(v) == 0:
                 raise ValueError(f"{self.gen.name}: the starting parameters give an empty shape for {d}")
             lo, hi = v.min(0).values, v.max(0).values
-            self._frames[key] = (0.5 * (lo + hi), float((hi - lo).max()))
+            center = 0.5 * (lo + hi)
+            # the diameter of the bounding sphere about the box center: the canonical shape lies in the unit
+            # sphere, as targets do (DESIGN.md, protocol v2), so a mesh target starts at scale 1
+            self._frames[key] = (center, 2.0 * float(torch.linalg.vector_norm(v - center, dim=1).max()))
         return self._frames[key]
 
     def _to_world(self, p: torch.Tensor, t, yaw, scale, discrete: Mapping[str, int]) -> torch.Tensor:

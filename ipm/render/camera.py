@@ -194,19 +194,30 @@ def pixel_rays(cam: Camera, dtype=None) -> tuple[torch.Tensor, torch.Tensor]:
     return cam.eye.to(dtype), d
 
 
-def input_views(k: int, size: int = 256) -> list[Camera]:
-    """The protocol's K input views: FOV 40°, distance 3.2, elevation 25°, azimuths 30° + k·360°/K."""
+def input_view_azimuths(k: int) -> list[float]:
+    """Azimuths (degrees) of the protocol's K input views: 30° + i·90° for K <= 4 (K = 2 is two
+    orthogonal views: opposite views leave the depth along their common axis nearly free), 30° + i·360°/K
+    beyond."""
     if not isinstance(k, int) or k < 1:
         raise ValueError(f"input views: expected a positive number of views, got {k}")
-    _check_size(size)
-    return [orbit_camera(30.0 + i * 360.0 / k, PROTOCOL_ELEVATION_DEG, PROTOCOL_DISTANCE,
-                         fov_deg=PROTOCOL_FOV_DEG, width=size, height=size) for i in range(k)]
+    step = 90.0 if k <= 4 else 360.0 / k
+    return [30.0 + i * step for i in range(k)]
 
 
-def heldout_views(size: int = 256) -> list[Camera]:
-    """The protocol's 16 held-out views: azimuths 11.25° + k·22.5°, elevations 10° and 40° alternating."""
+def input_views(k: int, size: int = 256, distance: float = PROTOCOL_DISTANCE) -> list[Camera]:
+    """The protocol's K input views (DESIGN.md, protocol v2): FOV 40°, elevation 25°, distance 3.2 from the
+    origin (``distance`` overrides it), azimuths from :func:`input_view_azimuths`."""
+    azimuths = input_view_azimuths(k)
     _check_size(size)
-    return [orbit_camera(11.25 + i * 22.5, 10.0 if i % 2 == 0 else 40.0, PROTOCOL_DISTANCE,
+    return [orbit_camera(az, PROTOCOL_ELEVATION_DEG, distance, fov_deg=PROTOCOL_FOV_DEG, width=size, height=size)
+            for az in azimuths]
+
+
+def heldout_views(size: int = 256, distance: float = PROTOCOL_DISTANCE) -> list[Camera]:
+    """The protocol's 16 held-out views: azimuths 11.25° + k·22.5°, elevations 10° and 40° alternating,
+    FOV 40°, distance 3.2 (``distance`` overrides it)."""
+    _check_size(size)
+    return [orbit_camera(11.25 + i * 22.5, 10.0 if i % 2 == 0 else 40.0, distance,
                          fov_deg=PROTOCOL_FOV_DEG, width=size, height=size) for i in range(16)]
 
 
