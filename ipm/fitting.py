@@ -16,7 +16,7 @@ from __future__ import annotations
 import json
 import logging
 from collections.abc import Callable
-from dataclasses import fields
+from dataclasses import fields, replace
 from pathlib import Path
 
 import torch
@@ -125,8 +125,7 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
     if run_dir is not None:
         out = save_run(run_dir, prob, best, result, cfg, scores)
         scores = out["scores"]
-    return FitResult(result.generator, result.params, result.loss, result.evaluations, result.wall_time_s,
-                     scores, None if run_dir is None else str(run_dir))
+    return replace(result, scores=scores, run_dir=None if run_dir is None else str(run_dir))
 
 
 def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
@@ -173,7 +172,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
         "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
         "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),
         "scores": scores, "params": result.params, "pose": prob.pose_json(x, best["discrete"]),
-        "discrete": best["discrete"],
+        "discrete": best["discrete"], "tied": list(result.tied),
         "files": files,
         "versions": {"ipm": ipm.__version__, "torch": torch.__version__, "numpy": np.__version__},
     }

@@ -144,3 +144,6 @@ class FitResult:
     wall_time_s: float
     scores: dict = field(default_factory=dict)
     run_dir: str | None = None
+    # discrete parameters the fit set back to the preset's value because the input could not tell the
+    # values apart (a handle hidden behind the body: ipm.optim.fit.break_ties)
+    tied: tuple[str, ...] = ()

@@ -164,7 +164,8 @@ def hidden_markdown(rows: list[dict]) -> str:
 
     lines = ["### Discrete parts the input views hide", "",
              "A discrete parameter is listed when a neighbouring value draws the same input masks (within "
-             f"{100 * HIDDEN_TOLERANCE:g} % of the target's pixels): no method can tell it from the views.", ""]
+             f"{100 * HIDDEN_TOLERANCE:g} % of the target's pixels in each view): no method can tell it from the "
+             "views.", ""]
     for (t, k), hidden in sorted(seen.items()):
         what = ", ".join(f"{n} (also {', '.join(map(str, v))})" for n, v in sorted(hidden.items())) or "none"
         lines.append(f"- {t}, {k} view{'s' if k > 1 else ''}: {what}")

@@ -41,6 +41,7 @@ class Best:
     x: torch.Tensor | None = None
     discrete: dict = field(default_factory=dict)
     index: int = -1
+    extras: dict = field(default_factory=dict)  # the objective's extras at this point (per-view IoU, ...)
 
 
 class Evaluator:
@@ -104,9 +105,10 @@ class Evaluator:
         self.last = rec
         key = tuple(sorted(disc.items()))
         if loss < self.best_by_discrete.get(key, Best()).loss:
-            self.best_by_discrete[key] = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count)
+            self.best_by_discrete[key] = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count,
+                                              extras)
         if loss < self.best.loss:
-            self.best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count)
+            self.best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count, extras)
         self.count += 1
         if self.progress is not None:
             self.progress(self)
