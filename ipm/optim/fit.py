@@ -9,8 +9,8 @@ The optimizer works on one normalized vector ``x`` in [0, 1]^m and a dict of dis
 
 The generator's output is first brought to a canonical frame (bounding-box center at the origin, longest
 side 2, measured once on the starting shape), then posed; a mesh target's fit starts with the scale that
-gives the starting shape the target's bounding sphere. One
-evaluation is one render of every view plus the loss (or, for a mesh target, one loss).
+gives the starting shape the target's bounding sphere. One evaluation is one render of every view plus
+the loss (or, for a mesh target, one loss).
 """
 
 from __future__ import annotations
