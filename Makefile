@@ -42,7 +42,7 @@ endef
 bench-small: $(STAMP) ## the small experiment (1 real mug, seconds), results/small/
 	$(call run_bench,small,small)
 
-table1: $(STAMP) ## the Table-1 analogue on real meshes (about 1 hour on 2 cores), results/table1/
+table1: $(STAMP) ## the Table-1 analogue: 17 real meshes, fits from 1, 2 and 4 views, results/table1/
 	$(call run_bench,table1,table1)
 
 table-synthetic: $(STAMP) ## generator samples with known parameters, results/table_synthetic/

@@ -285,3 +285,21 @@ def test_rows_list_the_discrete_parts_the_input_views_hide(tmp_path):
 
     text = hidden_markdown(list(rows.values()))
     assert "- mug, 1 view: has_handle (also 0)" in text and "- mug, 2 views: none" in text, text
+
+
+def test_a_second_bench_on_the_same_folder_is_refused(tmp_path):
+    """Two benches appending to one rows.jsonl lose rows (the second rewrites the file it read under the
+    first one's appends); the folder is locked for the run instead."""
+    import fcntl
+
+    from ipm.bench.harness import LOCK, run_experiment
+
+    exp = small_experiment(tmp_path, views=(1,), fits=False)
+    out = tmp_path / "res"
+    out.mkdir()
+    with open(out / LOCK, "a") as held:
+        fcntl.flock(held, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(ValueError, match="another ipm bench is writing to this folder"):
+            run_experiment(exp, out)
+    rows = run_experiment(exp, out)  # released: the run goes ahead
+    assert [r["status"] for r in rows] == ["ok"]

@@ -13,6 +13,7 @@ import logging
 import os
 import time
 from collections.abc import Callable
+from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -217,20 +218,44 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
         return [{"key": c.key, "status": "todo"} for c in todo]
     check_targets(exp_path, exp)
     out.mkdir(parents=True, exist_ok=True)
-    rows = list(done)
-    if done:  # drop a torn last line before appending
-        (out / ROWS).write_text("".join(json.dumps(r) + "\n" for r in done))
-    with open(out / ROWS, "a", buffering=1) as f:
-        def keep(row: dict) -> None:
-            f.write(json.dumps(row) + "\n")
-            f.flush()
-            rows.append(row)
-            if progress is not None:
-                progress(row, len(rows) - len(done), len(todo))
+    with _exclusive(out):
+        done = read_rows(out)  # again, now that no other bench writes here
+        todo = [c for c in exp.cells() if c.key not in {r["key"] for r in done}]
+        rows = list(done)
+        if done:  # drop a torn last line before appending
+            (out / ROWS).write_text("".join(json.dumps(r) + "\n" for r in done))
+        with open(out / ROWS, "a", buffering=1) as f:
+            def keep(row: dict) -> None:
+                f.write(json.dumps(row) + "\n")
+                f.flush()
+                rows.append(row)
+                if progress is not None:
+                    progress(row, len(rows) - len(done), len(todo))
 
-        for row in _execute(exp_path, todo, workers, scheduler, str(out.resolve())):
-            keep(row)
+            for row in _execute(exp_path, todo, workers, scheduler, str(out.resolve())):
+                keep(row)
     return rows
+
+
+LOCK = ".bench.lock"
+
+
+@contextmanager
+def _exclusive(out: Path):
+    """Hold ``out/.bench.lock`` for the run: a second bench on the same folder would rewrite rows.jsonl under
+    the first one's appends and lose rows, so it is refused (``ValueError``) instead."""
+    import fcntl
+
+    with open(out / LOCK, "a") as lock:
+        try:
+            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ValueError(f"{out}: another ipm bench is writing to this folder; wait for it to finish or "
+                             "choose another output folder") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(lock, fcntl.LOCK_UN)
 
 
 def _execute(exp_path: str, cells: list[Cell], workers: int, scheduler: str | None, out_dir: str):
