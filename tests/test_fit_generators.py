@@ -15,8 +15,8 @@ from ipm.types import TriMesh
 
 def normalized_mesh(gen: str, preset: str, overrides=None) -> TriMesh:
     """The generator's mesh, bounding-box center at the origin and longest side 2: the frame these fits
-    were calibrated in (the protocol's unit bounding sphere draws a mug about 0.75x as large, so the same
-    image sizes would give the fits fewer pixels)."""
+    were calibrated in (the protocol's unit bounding sphere draws a mug smaller, so the same image sizes
+    would give the fits fewer pixels)."""
     g = get_generator(gen)
     m = g.to_mesh(g.values(preset, overrides))
     V = m.verts.double().numpy()
