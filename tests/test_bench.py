@@ -21,7 +21,6 @@ SHARED = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply
 def small_experiment(tmp_path: Path, views=(1, 2), fits: bool = True) -> Path:
     """A copy of experiments/small.toml in a temporary project (so relative data paths still resolve);
     ``fits=False`` drops the generator fit (only the deterministic visual hull is left)."""
-    pytest.importorskip("ipm.render.raster")
     if not SHARED.is_file():
         pytest.skip(f"real data not found: {SHARED}")
     proj = tmp_path / "proj"

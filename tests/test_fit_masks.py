@@ -8,10 +8,9 @@ import torch
 from ipm.generators.base import Generator
 from ipm.optim.fit import FitSettings, MaskTarget, run_fit
 from ipm.params import Param, ParamSpec
+from ipm.render import camera
+from ipm.render import soft as render
 from ipm.types import TriMesh
-
-render = pytest.importorskip("ipm.render.soft")
-camera = pytest.importorskip("ipm.render.camera")
 
 CUBE_V = torch.tensor([[x, y, z] for x in (-0.5, 0.5) for y in (0.0, 1.0) for z in (-0.5, 0.5)], dtype=torch.float64)
 CUBE_F = torch.tensor([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
