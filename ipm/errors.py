@@ -19,3 +19,9 @@ def check(condition: bool, message: str) -> None:
     """Raise :class:`InputError` with ``message`` unless ``condition`` holds."""
     if not condition:
         raise InputError(message)
+
+
+class MethodFailed(RuntimeError):
+    """A method ran as designed and could not produce a result for this input (a bench method whose
+    visual hull is empty, a conversion that found no surface). The bench records the cell as failed
+    with this message; any other exception is a bug and stops the run."""

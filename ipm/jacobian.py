@@ -20,6 +20,8 @@ from typing import Literal
 import torch
 from torch.func import grad, jacfwd, jacrev, jvp, vmap
 
+from ipm.errors import InputError
+
 Mode = Literal["auto", "fwd", "rev"]
 MODES = ("auto", "fwd", "rev")
 
@@ -33,7 +35,7 @@ FWD_MAX_COLUMNS = 4
 
 def _check_mode(mode: str) -> None:
     if mode not in MODES:
-        raise ValueError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
+        raise InputError(f"mode: expected one of {', '.join(MODES)}, got {mode!r}")
 
 
 def sdf_jacobian(f: SdfFn, theta: torch.Tensor, points: torch.Tensor, mode: Mode = "auto",
@@ -44,7 +46,7 @@ def sdf_jacobian(f: SdfFn, theta: torch.Tensor, points: torch.Tensor, mode: Mode
     """
     _check_mode(mode)
     if points.ndim != 2 or points.shape[-1] != 3:
-        raise ValueError(f"points: expected (N, 3), got {tuple(points.shape)}")
+        raise InputError(f"points: expected (N, 3), got {tuple(points.shape)}")
     theta = theta.to(points.dtype)
     n = theta.shape[0]
     if mode == "auto":

@@ -19,6 +19,8 @@ from typing import Literal
 import numpy as np
 import torch
 
+from ipm.errors import InputError
+
 Kind = Literal["float", "int", "bool"]
 Value = float | int
 
@@ -39,12 +41,12 @@ class Param:
 
     def __post_init__(self) -> None:
         if self.kind not in ("float", "int", "bool"):
-            raise ValueError(f"parameter {self.name!r}: expected kind float|int|bool, got {self.kind!r}")
+            raise InputError(f"parameter {self.name!r}: expected kind float|int|bool, got {self.kind!r}")
         if self.kind == "bool" and (self.lo, self.hi) != (0, 1):
             object.__setattr__(self, "lo", 0)
             object.__setattr__(self, "hi", 1)
         if not (self.lo <= self.default <= self.hi):
-            raise ValueError(
+            raise InputError(
                 f"parameter {self.name!r}: default {self.default} is outside [{self.lo}, {self.hi}]"
             )
 
@@ -57,19 +59,19 @@ class Param:
         if isinstance(value, bool):
             value = int(value)
         if not isinstance(value, (int, float, np.integer, np.floating)):
-            raise ValueError(f"parameter {self.name!r}: expected a number, got {value!r}")
+            raise InputError(f"parameter {self.name!r}: expected a number, got {value!r}")
         value = float(value) if self.kind == "float" else value
         if isinstance(value, float) and not math.isfinite(value):
-            raise ValueError(f"parameter {self.name!r}: expected a finite number, got {value}")
+            raise InputError(f"parameter {self.name!r}: expected a finite number, got {value}")
         if self.kind != "float":
             if float(value) != round(float(value)):
-                raise ValueError(
+                raise InputError(
                     f"parameter {self.name!r} is {self.kind}: expected a whole number in "
                     f"[{self.lo}, {self.hi}], got {value}"
                 )
             value = int(round(float(value)))
         if not (self.lo <= value <= self.hi):
-            raise ValueError(
+            raise InputError(
                 f"parameter {self.name!r}: expected a value in [{self.lo}, {self.hi}], got {value}"
             )
         return value
@@ -94,7 +96,7 @@ class ParamSpec:
         index = {}
         for i, p in enumerate(self.params):
             if p.name in index:
-                raise ValueError(f"duplicate parameter name {p.name!r}")
+                raise InputError(f"duplicate parameter name {p.name!r}")
             index[p.name] = i
         object.__setattr__(self, "_index", index)
 
@@ -111,7 +113,7 @@ class ParamSpec:
         try:
             return self.params[self._index[name]]
         except KeyError:
-            raise ValueError(self._unknown(name)) from None
+            raise InputError(self._unknown(name)) from None
 
     def _unknown(self, name: str) -> str:
         return f"unknown parameter {name!r}; valid names: {', '.join(self.names) or '(none)'}"
@@ -143,12 +145,12 @@ class ParamSpec:
         out = self.defaults()
         for name, value in values.items():
             if name not in self._index:
-                raise ValueError(self._unknown(name))
+                raise InputError(self._unknown(name))
             out[name] = self[name].check(value)
         if not partial:
             missing = [n for n in self.names if n not in values]
             if missing:
-                raise ValueError(f"missing parameters: {', '.join(missing)}")
+                raise InputError(f"missing parameters: {', '.join(missing)}")
         return out
 
     # vectors -----------------------------------------------------------------------------------
@@ -175,12 +177,12 @@ class ParamSpec:
         """Named dict from ``theta: (n,)`` and the discrete values (defaults where absent)."""
         vals = [float(v) for v in (theta.detach().cpu().tolist() if torch.is_tensor(theta) else theta)]
         if len(vals) != self.n_continuous:
-            raise ValueError(f"expected a vector of {self.n_continuous} continuous values, got {len(vals)}")
+            raise InputError(f"expected a vector of {self.n_continuous} continuous values, got {len(vals)}")
         out = self.defaults()
         for name, value in (discrete or {}).items():
             p = self[name]
             if p.continuous:
-                raise ValueError(f"parameter {name!r} is continuous; pass it in the vector")
+                raise InputError(f"parameter {name!r} is continuous; pass it in the vector")
             out[name] = p.check(value)
         out.update({p.name: v for p, v in zip(self.continuous, vals)})
         return out
@@ -214,11 +216,11 @@ def parse_assignment(text: str) -> tuple[str, float]:
     """Parse ``NAME=VALUE`` (from ``--set``); raise ``ValueError`` with the expected form."""
     name, sep, raw = text.partition("=")
     if not sep or not name.strip():
-        raise ValueError(f"expected NAME=VALUE, got {text!r}")
+        raise InputError(f"expected NAME=VALUE, got {text!r}")
     try:
         value = float(raw)
     except ValueError:
-        raise ValueError(f"expected a number after '=' in {text!r}") from None
+        raise InputError(f"expected a number after '=' in {text!r}") from None
     return name.strip(), value
 
 
@@ -226,13 +228,13 @@ def load_param_file(path: str | Path) -> tuple[str | None, dict[str, object]]:
     """Read ``{"generator": ..., "params": {...}}``; return (generator name or None, raw params)."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"parameter file not found: {path}")
+        raise InputError(f"parameter file not found: {path}")
     try:
         data = json.loads(path.read_text())
     except json.JSONDecodeError as e:
-        raise ValueError(f"parameter file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+        raise InputError(f"parameter file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
     if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
-        raise ValueError(f"parameter file {path}: expected an object with a 'params' object")
+        raise InputError(f"parameter file {path}: expected an object with a 'params' object")
     gen = data.get("generator")
     return (str(gen) if gen is not None else None), dict(data["params"])
 
@@ -247,7 +249,7 @@ def check_fields(cls: type, keys: Iterable[str], what: str, noun: str = "field(s
     known = {f.name for f in fields(cls)}
     unknown = sorted(set(keys) - known)
     if unknown:
-        raise ValueError(f"{what}: unknown {noun} {', '.join(unknown)}; expected some of {', '.join(sorted(known))}")
+        raise InputError(f"{what}: unknown {noun} {', '.join(unknown)}; expected some of {', '.join(sorted(known))}")
 
 
 def dataclass_from(cls: type, values: Mapping[str, object], what: str, noun: str = "field(s)"):

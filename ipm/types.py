@@ -7,6 +7,8 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ipm.errors import InputError
+
 
 @dataclass(frozen=True)
 class TriMesh:
@@ -25,11 +27,11 @@ class TriMesh:
 
     def __post_init__(self) -> None:
         if self.verts.ndim != 2 or self.verts.shape[-1] != 3:
-            raise ValueError(f"verts: expected (V, 3), got {tuple(self.verts.shape)}")
+            raise InputError(f"verts: expected (V, 3), got {tuple(self.verts.shape)}")
         if self.faces.ndim != 2 or self.faces.shape[-1] != 3:
-            raise ValueError(f"faces: expected (F, 3), got {tuple(self.faces.shape)}")
+            raise InputError(f"faces: expected (F, 3), got {tuple(self.faces.shape)}")
         if self.groups is not None and self.groups.shape != self.faces.shape[:1]:
-            raise ValueError(f"groups: expected ({self.faces.shape[0]},), got {tuple(self.groups.shape)}")
+            raise InputError(f"groups: expected ({self.faces.shape[0]},), got {tuple(self.groups.shape)}")
 
     @property
     def n_verts(self) -> int:
@@ -78,7 +80,7 @@ class TriMesh:
 def _vec3(x, dtype=torch.float64) -> torch.Tensor:
     t = torch.as_tensor(x, dtype=dtype) if not torch.is_tensor(x) else x
     if t.shape != (3,):
-        raise ValueError(f"expected a 3-vector, got shape {tuple(t.shape)}")
+        raise InputError(f"expected a 3-vector, got shape {tuple(t.shape)}")
     return t
 
 
@@ -104,10 +106,10 @@ class Camera:
                                                                                 dtype=self.eye.dtype)
         object.__setattr__(self, "fov_deg", fov)
         if int(self.width) <= 0 or int(self.height) <= 0:
-            raise ValueError(f"camera image size: expected positive width and height, "
+            raise InputError(f"camera image size: expected positive width and height, "
                              f"got {self.width}x{self.height}")
         if not (0.0 < float(fov.detach()) < 180.0):
-            raise ValueError(f"camera fov_deg: expected a value in (0, 180), got {float(fov.detach())}")
+            raise InputError(f"camera fov_deg: expected a value in (0, 180), got {float(fov.detach())}")
 
     def to_json(self) -> dict:
         return {
@@ -124,7 +126,7 @@ class Camera:
         need = ("eye", "target", "up", "fov_deg", "width", "height")
         missing = [k for k in need if k not in d]
         if missing:
-            raise ValueError(f"camera entry is missing {', '.join(missing)}; expected fields {', '.join(need)}")
+            raise InputError(f"camera entry is missing {', '.join(missing)}; expected fields {', '.join(need)}")
         return Camera(d["eye"], d["target"], d["up"], d["fov_deg"], int(d["width"]), int(d["height"]))
 
     def to(self, dtype=None, device=None) -> Camera:

@@ -13,12 +13,20 @@ ROOT = Path(__file__).resolve().parents[1]
 REAL = (ROOT / ".." / "shared" / "data" / "real").resolve()
 
 
-def real_path(rel: str) -> Path:
-    """A file under ../shared/data/real; skips the test (with the reason) if it is not there."""
-    p = REAL / rel
+def require_file(p: Path) -> Path:
+    """``p`` if it exists. Otherwise the test fails under ``CI=true`` (a CI clone without the shared data
+    must not pass green) and is skipped, with the reason, on a developer's machine."""
     if not p.is_file():
-        pytest.skip(f"real data not found: {p}")
+        msg = f"real data not found: {p} (the tests expect ../shared/data beside the project)"
+        if os.environ.get("CI", "").lower() in ("1", "true", "yes"):
+            pytest.fail(msg + "; CI=true requires it", pytrace=False)
+        pytest.skip(msg)
     return p
+
+
+def real_path(rel: str) -> Path:
+    """A file under ../shared/data/real (:func:`require_file`)."""
+    return require_file(REAL / rel)
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import require_file
 
 from ipm.bench.config import load_experiment
 from ipm.bench.tables import latex, markdown
@@ -21,8 +22,7 @@ SHARED = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply
 def small_experiment(tmp_path: Path, views=(1, 2), fits: bool = True) -> Path:
     """A copy of experiments/small.toml in a temporary project (so relative data paths still resolve);
     ``fits=False`` drops the generator fit (only the deterministic visual hull is left)."""
-    if not SHARED.is_file():
-        pytest.skip(f"real data not found: {SHARED}")
+    require_file(SHARED)
     proj = tmp_path / "proj"
     (proj / "experiments").mkdir(parents=True)
     text = SMALL.read_text().replace("../shared/data/real/vessels/ocrtoc_mug.ply", str(SHARED))
@@ -95,7 +95,8 @@ def test_existing_rows_without_resume_is_an_error(tmp_path):
 
 
 def test_dask_local_cluster_gives_the_same_rows(tmp_path):
-    distributed = pytest.importorskip("dask.distributed")
+    import dask.distributed as distributed
+
     from ipm.bench.harness import run_experiment
 
     exp = small_experiment(tmp_path, views=(1, 2), fits=False)  # two cells

@@ -48,6 +48,15 @@ import itertools
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import msgspec
+from msgspec import Meta
+
+from ipm.errors import InputError
+
+MAX_SIZE = 2048   # pixels a side of input and held-out masks
+MAX_VIEWS = 64
 
 
 @dataclass(frozen=True)
@@ -134,79 +143,127 @@ class Experiment:
         return next(m for m in self.methods if m.name == name)
 
 
+# The file's schema (msgspec validates types, ranges and unknown keys; messages give the key's path)
+PosInt = Annotated[int, Meta(ge=1)]
+Seed = Annotated[int, Meta(ge=0)]
+
+
+class _TargetFile(msgspec.Struct, forbid_unknown_fields=True, rename={"cls": "class"}):
+    name: Annotated[str, Meta(min_length=1)]
+    mesh: str | None = None
+    up: Literal["y", "z"] = "y"
+    generator: str | None = None
+    preset: str | None = None
+    random: bool = False
+    seed: Seed = 0
+    params: dict[str, Any] = {}
+    cls: Annotated[str, Meta(min_length=1)] | None = None
+
+
+class _MethodKeys(msgspec.Struct, forbid_unknown_fields=True):
+    """The keys of a ``[[methods]]`` table that are not the method's own settings."""
+
+    name: Annotated[str, Meta(min_length=1)]
+    method: str
+    views: Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)] | None = None
+    targets: list[str] | None = None
+    seeds: Annotated[list[Seed], Meta(min_length=1)] | dict[str, Annotated[list[Seed], Meta(min_length=1)]] | None \
+        = None
+    by_class: dict[str, dict[str, Any]] | None = None
+
+
+class _File(msgspec.Struct, forbid_unknown_fields=True):
+    targets: Annotated[list[_TargetFile], Meta(min_length=1)]
+    methods: Annotated[list[dict[str, Any]], Meta(min_length=1)]
+    name: Annotated[str, Meta(min_length=1)] | None = None
+    views: Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)] = [1]
+    seeds: Annotated[list[Seed], Meta(min_length=1)] = [0]
+    budget: Annotated[int, Meta(ge=1, le=10_000_000)] = 1000
+    size: Annotated[int, Meta(ge=16, le=MAX_SIZE)] = 256
+    heldout_size: Annotated[int, Meta(ge=16, le=MAX_SIZE)] = 256
+    samples: Annotated[int, Meta(ge=100, le=10_000_000)] = 10_000
+    iou_resolution: Annotated[int, Meta(ge=8, le=512)] = 64
+    distance: Annotated[float, Meta(gt=0)] = 3.2
+    notes: str = ""
+
+
+def _convert(data, schema, where: str):
+    try:
+        return msgspec.convert(data, schema)
+    except msgspec.ValidationError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
 def load_experiment(path: str | Path) -> Experiment:
-    """Parse and check an experiment file; ``ValueError`` names the problem."""
+    """Parse and check an experiment file; :class:`~ipm.errors.InputError` names the file and the problem.
+
+    Everything a run needs is checked here, without running: keys (unknown ones are refused), types and
+    ranges, names, and every method's settings for every target it applies to
+    (:func:`ipm.bench.methods.check_settings`: unknown generators, presets and settings keys)."""
+    from ipm.bench.methods import check_settings
+
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"experiment file not found: {path}")
+        raise InputError(f"experiment file not found: {path}")
     try:
-        data = tomllib.loads(path.read_text())
+        data = tomllib.loads(path.read_bytes().decode("utf-8"))
+    except UnicodeDecodeError:
+        raise InputError(f"experiment file {path}: expected UTF-8 TOML text, got binary data") from None
     except tomllib.TOMLDecodeError as e:
-        raise ValueError(f"experiment file {path} is not valid TOML: {e}") from None
-    from ipm.bench.methods import METHODS
-
+        raise InputError(f"experiment file {path} is not valid TOML: {e}") from None
+    f = _convert(data, _File, str(path))
     # paths in the file are relative to the project root: the experiments folder's parent
     root = path.resolve().parent.parent
     targets = []
-    for i, t in enumerate(data.get("targets", [])):
-        if "name" not in t or (("mesh" in t) == ("generator" in t)):
-            raise ValueError(f"{path}: target {i} needs a name and exactly one of mesh or generator")
-        if t.get("up", "y") not in ("y", "z"):
-            raise ValueError(f"{path}: target {t['name']}: up must be y or z")
-        if "class" in t and not (isinstance(t["class"], str) and t["class"]):
-            raise ValueError(f"{path}: target {t['name']}: class must be a non-empty string, got {t['class']!r}")
-        targets.append(TargetSpec(name=t["name"], mesh=t.get("mesh"), up=t.get("up", "y"),
-                                  generator=t.get("generator"), preset=t.get("preset"),
-                                  random=bool(t.get("random", False)), seed=int(t.get("seed", 0)),
-                                  params=dict(t.get("params", {})), cls=t.get("class")))
+    for t in f.targets:
+        if (t.mesh is None) == (t.generator is None):
+            raise InputError(f"{path}: target {t.name}: expected exactly one of mesh or generator")
+        if t.generator is None and (t.preset is not None or t.random or t.params):
+            raise InputError(f"{path}: target {t.name}: preset, random and params go with a generator target")
+        targets.append(TargetSpec(name=t.name, mesh=t.mesh, up=t.up, generator=t.generator, preset=t.preset,
+                                  random=t.random, seed=t.seed, params=dict(t.params), cls=t.cls))
     methods = []
-    for i, m in enumerate(data.get("methods", [])):
-        if "name" not in m or "method" not in m:
-            raise ValueError(f"{path}: method {i} needs a name and a method")
-        if m["method"] not in METHODS:
-            raise ValueError(f"{path}: method {m['name']}: unknown method {m['method']!r}; "
-                             f"known: {', '.join(sorted(METHODS))}")
-        settings = {k: v for k, v in m.items() if k not in ("name", "method", "views", "targets", "seeds")}
+    for i, m in enumerate(f.methods):
+        keys = {k: v for k, v in m.items() if k in _MethodKeys.__struct_fields__}
+        mk = _convert(keys, _MethodKeys, f"{path}: method {m.get('name', i)}")
+        settings = {k: v for k, v in m.items() if k not in _MethodKeys.__struct_fields__}
         only = None
-        if "targets" in m:
-            only = tuple(str(n) for n in m["targets"])
+        if mk.targets is not None:
+            only = tuple(mk.targets)
             missing = sorted(set(only) - {t.name for t in targets})
             if missing:
-                raise ValueError(f"{path}: method {m['name']}: unknown targets {', '.join(missing)}; "
+                raise InputError(f"{path}: method {mk.name}: unknown targets {', '.join(missing)}; "
                                  f"targets: {', '.join(t.name for t in targets)}")
         seeds, seeds_by_views = None, None
-        if isinstance(m.get("seeds"), dict):
-            seeds_by_views = {}
-            for k, v in m["seeds"].items():
-                if not (k.isdigit() and int(k) >= 1 and v and all(isinstance(x, int) for x in v)):
-                    raise ValueError(f"{path}: method {m['name']}: seeds per views must map a number of views "
-                                     f"to a non-empty list of integers, got {k} = {v!r}")
-                seeds_by_views[int(k)] = tuple(int(x) for x in v)
-        elif "seeds" in m:
-            if not m["seeds"] or not all(isinstance(x, int) for x in m["seeds"]):
-                raise ValueError(f"{path}: method {m['name']}: seeds must be a non-empty list of integers")
-            seeds = tuple(int(x) for x in m["seeds"])
-        if "by_class" in settings:
-            by_class = settings["by_class"]
-            applies = [t for t in targets if only is None or t.name in only]
-            missing = sorted({t.name for t in applies if not isinstance(by_class, dict) or t.cls not in by_class})
-            if missing or not all(isinstance(v, dict) for v in by_class.values()):
-                raise ValueError(f"{path}: method {m['name']}: by_class must give a table of settings for the "
+        if isinstance(mk.seeds, dict):
+            bad = [k for k in mk.seeds if not (k.isdigit() and int(k) >= 1)]
+            if bad:
+                raise InputError(f"{path}: method {mk.name}: seeds per views must map a number of views (1 or "
+                                 f"more) to a list of seeds, got {bad[0]!r}")
+            seeds_by_views = {int(k): tuple(v) for k, v in mk.seeds.items()}
+        elif mk.seeds is not None:
+            seeds = tuple(mk.seeds)
+        applies = [t for t in targets if only is None or t.name in only]
+        if mk.by_class is not None:
+            settings["by_class"] = mk.by_class
+            missing = sorted({t.name for t in applies if t.cls not in mk.by_class})
+            if missing:
+                raise InputError(f"{path}: method {mk.name}: by_class must give a table of settings for the "
                                  f"class of every target it applies to; missing for {', '.join(missing)}")
-        methods.append(MethodSpec(m["name"], m["method"], tuple(m["views"]) if "views" in m else None, settings,
-                                  only, seeds, seeds_by_views))
-    if not targets or not methods:
-        raise ValueError(f"{path}: expected at least one [[targets]] and one [[methods]]")
-    distance = data.get("distance", 3.2)
-    if isinstance(distance, bool) or not isinstance(distance, (int, float)) or not distance > 0:
-        raise ValueError(f"{path}: distance must be a positive number, got {distance!r}")
+        spec = MethodSpec(mk.name, mk.method, tuple(mk.views) if mk.views else None, settings, only, seeds,
+                          seeds_by_views)
+        for t in applies or targets[:1]:
+            try:
+                check_settings(mk.method, spec.settings_for(t))
+            except InputError as e:
+                raise InputError(f"{path}: method {mk.name}" + (f", target {t.name}" if mk.by_class else "")
+                                 + f": {e}") from None
+        methods.append(spec)
     names = [t.name for t in targets] + [m.name for m in methods]
     if len(set(names)) != len(names):
-        raise ValueError(f"{path}: target and method names must be unique")
-    return Experiment(name=str(data.get("name", path.stem)), root=root, targets=tuple(targets),
-                      methods=tuple(methods), views=tuple(data.get("views", [1])),
-                      seeds=tuple(data.get("seeds", [0])), budget=int(data.get("budget", 1000)),
-                      size=int(data.get("size", 256)), heldout_size=int(data.get("heldout_size", 256)),
-                      samples=int(data.get("samples", 10_000)), iou_resolution=int(data.get("iou_resolution", 64)),
-                      distance=float(distance),
-                      notes=str(data.get("notes", "")).strip())
+        dup = sorted({n for n in names if names.count(n) > 1})
+        raise InputError(f"{path}: target and method names must be unique; repeated: {', '.join(dup)}")
+    return Experiment(name=f.name or path.stem, root=root, targets=tuple(targets), methods=tuple(methods),
+                      views=tuple(f.views), seeds=tuple(f.seeds), budget=f.budget, size=f.size,
+                      heldout_size=f.heldout_size, samples=f.samples, iou_resolution=f.iou_resolution,
+                      distance=float(f.distance), notes=f.notes.strip())

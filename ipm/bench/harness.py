@@ -23,6 +23,7 @@ import torch
 
 from ipm.bench.config import Cell, Experiment, load_experiment
 from ipm.bench.protocol import align_scale, check_border, hidden_discrete, render_masks, scale_about
+from ipm.errors import InputError, MethodFailed
 from ipm.types import TriMesh
 
 log = logging.getLogger(__name__)
@@ -160,7 +161,7 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
     settings = spec.settings_for(exp.target(cell.target))
     try:
         pred = METHODS[spec.method](task, settings, exp.budget, cell.seed)
-    except ValueError as e:
+    except MethodFailed as e:
         row.update(status="failed", error=str(e), wall_time_s=round(time.perf_counter() - t0, 3))
         return row
     mesh = TriMesh(pred.mesh.verts.detach().double(), pred.mesh.faces)
@@ -210,30 +211,41 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
     out = Path(out_dir)
     done = read_rows(out)
     if done and not resume and not dry_run:
-        raise ValueError(f"{out / ROWS} already has {len(done)} rows; pass --resume to continue it, "
+        raise InputError(f"{out / ROWS} already has {len(done)} rows; pass --resume to continue it, "
                          "or choose another output folder")
     finished = {r["key"] for r in done}
     todo = [c for c in exp.cells() if c.key not in finished]
     if dry_run:
         return [{"key": c.key, "status": "todo"} for c in todo]
     check_targets(exp_path, exp)
-    out.mkdir(parents=True, exist_ok=True)
-    with _exclusive(out):
-        done = read_rows(out)  # again, now that no other bench writes here
-        todo = [c for c in exp.cells() if c.key not in {r["key"] for r in done}]
-        rows = list(done)
-        if done:  # drop a torn last line before appending
-            (out / ROWS).write_text("".join(json.dumps(r) + "\n" for r in done))
-        with open(out / ROWS, "a", buffering=1) as f:
-            def keep(row: dict) -> None:
-                f.write(json.dumps(row) + "\n")
-                f.flush()
-                rows.append(row)
-                if progress is not None:
-                    progress(row, len(rows) - len(done), len(todo))
+    if out.exists() and not out.is_dir():
+        raise InputError(f"output {out}: expected a folder, got a file")
+    created = not out.exists()
+    with _executor(workers, scheduler) as submit:  # a scheduler that cannot be reached fails here
+        from ipm.io.atomic import make_parent
 
-            for row in _execute(exp_path, todo, workers, scheduler, str(out.resolve())):
-                keep(row)
+        make_parent(out / ROWS)
+        rows = list(done)
+        try:
+            with _exclusive(out):
+                done = read_rows(out)  # again, now that no other bench writes here
+                todo = [c for c in exp.cells() if c.key not in {r["key"] for r in done}]
+                rows = list(done)
+                if done:  # drop a torn last line before appending
+                    (out / ROWS).write_text("".join(json.dumps(r) + "\n" for r in done))
+                with open(out / ROWS, "a", buffering=1) as f:
+                    for row in submit(exp_path, todo, str(out.resolve())):
+                        f.write(json.dumps(row) + "\n")
+                        f.flush()
+                        rows.append(row)
+                        if progress is not None:
+                            progress(row, len(rows) - len(done), len(todo))
+        except BaseException:
+            if created and len(rows) == 0:  # nothing to resume: leave nothing behind
+                import shutil
+
+                shutil.rmtree(out, ignore_errors=True)
+            raise
     return rows
 
 
@@ -250,7 +262,7 @@ def _exclusive(out: Path):
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            raise ValueError(f"{out}: another ipm bench is writing to this folder; wait for it to finish or "
+            raise InputError(f"{out}: another ipm bench is writing to this folder; wait for it to finish or "
                              "choose another output folder") from None
         try:
             yield
@@ -258,23 +270,55 @@ def _exclusive(out: Path):
             fcntl.flock(lock, fcntl.LOCK_UN)
 
 
-def _execute(exp_path: str, cells: list[Cell], workers: int, scheduler: str | None, out_dir: str):
+@contextmanager
+def _executor(workers: int, scheduler: str | None):
+    """Yield ``submit(exp_path, cells, out_dir)``, an iterator of finished rows, for the chosen backend:
+    inline (one worker), local worker processes (which die with this process, even on SIGKILL), or a
+    Dask scheduler (connected to before anything is written; ``InputError`` when it cannot be reached)."""
     if scheduler is not None:
         from dask.distributed import Client, as_completed
 
-        with Client(scheduler) as client:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except (OSError, TimeoutError, ValueError) as e:
+            raise InputError(f"--scheduler {scheduler}: cannot reach a Dask scheduler there ({e})") from None
+
+        def submit_dask(exp_path, cells, out_dir):
             futures = [client.submit(run_cell, exp_path, c, out_dir, pure=False) for c in cells]
             for fut in as_completed(futures):
                 yield fut.result()
+
+        with client:
+            yield submit_dask
         return
     if workers <= 1:
-        for c in cells:
-            yield run_cell(exp_path, c, out_dir)
+        yield lambda exp_path, cells, out_dir: (run_cell(exp_path, c, out_dir) for c in cells)
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     os.environ["IPM_BENCH_WORKER"] = "1"
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = [pool.submit(run_cell, exp_path, c, out_dir) for c in cells]
-        for fut in as_completed(futures):
-            yield fut.result()
+    with ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent, initargs=(os.getpid(),)) as pool:
+        def submit_pool(exp_path, cells, out_dir):
+            futures = [pool.submit(run_cell, exp_path, c, out_dir) for c in cells]
+            try:
+                for fut in as_completed(futures):
+                    yield fut.result()
+            finally:
+                for fut in futures:
+                    fut.cancel()
+
+        yield submit_pool
+
+
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: ask Linux to SIGKILL this worker when its parent dies (``prctl``
+    PR_SET_PDEATHSIG), so a killed bench leaves no orphans; elsewhere the pool's own shutdown applies."""
+    import ctypes
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        libc = ctypes.CDLL(None, use_errno=True)
+        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
+        if os.getppid() != parent:  # the parent died before prctl took effect
+            os._exit(1)

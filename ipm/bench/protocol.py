@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.metrics import touches_border
 from ipm.types import Camera, TriMesh
 
@@ -40,7 +41,7 @@ def check_border(masks: np.ndarray, what: str) -> None:
     """Raise ``ValueError`` naming ``what`` and the first view whose mask (K, H, W) touches the border."""
     for i, m in enumerate(masks):
         if touches_border(m):
-            raise ValueError(f"{what}: the mask of view {i} touches the image border (the object is clipped); "
+            raise InputError(f"{what}: the mask of view {i} touches the image border (the object is clipped); "
                              "expected a target that every protocol view sees whole: normalize it to the "
                              "unit bounding sphere and keep the cameras at distance >= 3.2")
 
@@ -77,7 +78,7 @@ def align_scale(pred: TriMesh, target: TriMesh, eye: torch.Tensor, *, n: int = A
 
     lo, hi = bounds
     if not 0 < lo <= 1 <= hi:
-        raise ValueError(f"alignment bounds: expected 0 < lo <= 1 <= hi, got {bounds}")
+        raise InputError(f"alignment bounds: expected 0 < lo <= 1 <= hi, got {bounds}")
     Vp, Fp = mesh_arrays(pred)
     Vt, Ft = mesh_arrays(target)
     e = eye.detach().cpu().double().numpy()

@@ -1,13 +1,23 @@
 """The ``ipm`` command line: one module per command, each with ``register(app)``.
 
-Results go to stdout (paths, or JSON with ``--json``); progress and logs go to stderr. Input and usage
-errors print one line ``ipm: error: ...`` on stderr and exit with code 2.
+Results go to stdout (paths, or JSON with ``--json``); progress and logs go to stderr (``-v`` for
+debug messages, ``-q`` for errors only). Exit codes:
+
+- 0: done;
+- 2: bad input (:class:`ipm.errors.InputError`, a usage error, or a file the OS refuses: missing,
+  unreadable, unwritable, disk full): one line ``ipm: error: ...`` on stderr, nothing left behind;
+- 1: an internal error (a bug): ``ipm: internal error: ...`` and, with ``--debug``, the traceback;
+- 130: interrupted (Ctrl-C).
+
+Importing this module must stay cheap (``ipm --help`` in a fraction of a second): command modules
+import torch and the library inside their command functions, never at the top.
 """
 
 from __future__ import annotations
 
 import importlib
 import sys
+from typing import Annotated
 
 import typer
 
@@ -23,12 +33,29 @@ app = typer.Typer(
     rich_markup_mode=None,
 )
 
+# --debug of the current invocation (read by main's error handler)
+_STATE = {"debug": False}
+
+
+@app.callback()
+def _options(
+    verbose: Annotated[bool, typer.Option("-v", "--verbose", help="log debug messages on stderr")] = False,
+    quiet: Annotated[bool, typer.Option("-q", "--quiet", help="log errors only")] = False,
+    debug: Annotated[bool, typer.Option("--debug", help="show the traceback of internal errors")] = False,
+    threads: Annotated[int, typer.Option("--threads", min=1, max=256, help=(
+        "torch CPU threads. Default 1: with one thread a run is bit-identical for the same inputs, seed "
+        "and settings (also across --resume); more threads may change results in float rounding"))] = 1,
+) -> None:
+    """Inverse procedural modeling: differentiable generators, Jacobians, silhouettes, fitting."""
+    from ipm.cli.common import set_threads, setup_logging
+
+    _STATE["debug"] = debug
+    setup_logging("debug" if verbose else "error" if quiet else "info")
+    set_threads(threads)
+
+
 for _name in COMMANDS:
-    try:
-        importlib.import_module(f"ipm.cli.{_name}").register(app)
-    except ModuleNotFoundError as _e:  # a command whose module is not written yet
-        if _e.name != f"ipm.cli.{_name}":
-            raise
+    importlib.import_module(f"ipm.cli.{_name}").register(app)
 
 
 def _click_exceptions(attr: str) -> tuple[type, ...]:
@@ -44,27 +71,68 @@ def _click_exceptions(attr: str) -> tuple[type, ...]:
     return tuple(found)
 
 
-def main(argv: list[str] | None = None) -> None:
-    """Console entry point: run the app and turn usage and input errors into exit code 2."""
-    from ipm.cli.common import UsageError, error_line
+_GLOBAL_FLAGS = {"-v", "--verbose", "-q", "--quiet", "--debug"}
 
+
+def _global_first(argv: list[str]) -> list[str]:
+    """Move the global options (``-v``, ``-q``, ``--debug``, ``--threads N``) in front of the command, so
+    they may be written anywhere on the line (``ipm fit ... -v``); ``--`` ends the scan."""
+    front, rest, i = [], [], 0
+    while i < len(argv):
+        a = argv[i]
+        if a == "--":
+            rest += argv[i:]
+            break
+        if a in _GLOBAL_FLAGS or a.startswith("--threads="):
+            front.append(a)
+        elif a == "--threads" and i + 1 < len(argv):
+            front += argv[i:i + 2]
+            i += 1
+        else:
+            rest.append(a)
+        i += 1
+    return front + rest
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: run the app and map its outcome to an exit code (module docstring)."""
+    from ipm.cli.common import error_line, os_error_line
+    from ipm.errors import InputError
+
+    argv = _global_first(list(sys.argv[1:] if argv is None else argv))
+    _STATE["debug"] = "--debug" in argv
     try:
-        app(args=argv, prog_name="ipm", standalone_mode=False)
+        rc = app(args=argv, prog_name="ipm", standalone_mode=False)
     except _click_exceptions("NoArgsIsHelpError"):
-        sys.exit(0)
+        rc = 0
     except _click_exceptions("Exit") as e:
-        sys.exit(e.exit_code)
-    except _click_exceptions("Abort"):
+        rc = e.exit_code
+    except (*_click_exceptions("Abort"), KeyboardInterrupt):
         error_line("interrupted")
-        sys.exit(130)
+        rc = 130
     except _click_exceptions("UsageError") as e:
         msg = e.format_message() if hasattr(e, "format_message") else str(e)
         error_line(msg.splitlines()[0] if msg else "invalid usage; see ipm --help")
-        sys.exit(2)
-    except (UsageError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as e:
-        error_line(str(e).splitlines()[0] if str(e) else type(e).__name__)
-        sys.exit(2)
-    except KeyboardInterrupt:
-        error_line("interrupted")
-        sys.exit(130)
-    sys.exit(0)
+        rc = 2
+    except InputError as e:
+        error_line(str(e).splitlines()[0] if str(e) else "bad input")
+        rc = 2
+    except OSError as e:  # missing, unreadable or unwritable files, a full disk: the environment, not a bug
+        error_line(os_error_line(e))
+        rc = 2
+    except RecursionError:
+        error_line("input nested too deeply")
+        rc = 2
+    except MemoryError:
+        error_line("out of memory; reduce the sizes asked for")
+        rc = 2
+    except Exception as e:  # anything else is a bug: loud, exit 1
+        if _STATE["debug"]:
+            import traceback
+
+            traceback.print_exc()
+        first = str(e).splitlines()[0] if str(e) else ""
+        sys.stderr.write(f"ipm: internal error: {type(e).__name__}: {first}"
+                         f"{'' if _STATE['debug'] else ' (run with --debug for the traceback)'}\n")
+        rc = 1
+    sys.exit(rc if isinstance(rc, int) else 0)

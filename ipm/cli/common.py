@@ -2,21 +2,27 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
-import torch
 import typer
+
+from ipm.errors import InputError
+
+if TYPE_CHECKING:
+    import numpy as np
+    import torch
 
 log = logging.getLogger("ipm")
 
+# Bad input from the user (the CLI's name for it): one line, exit code 2.
+UsageError = InputError
 
-class UsageError(ValueError):
-    """Bad input from the user: reported as one line, exit code 2."""
+_LEVELS = {"debug": logging.DEBUG, "info": logging.INFO, "warning": logging.WARNING, "error": logging.ERROR}
 
 
 def error_line(msg: str) -> None:
@@ -24,16 +30,55 @@ def error_line(msg: str) -> None:
     sys.stderr.flush()
 
 
-def setup_logging(verbose: bool = False) -> None:
-    from rich.console import Console
-    from rich.logging import RichHandler
+def os_error_line(e: OSError) -> str:
+    """One line for an OS refusal: what happened and to which file."""
+    what = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
+            errno.EDQUOT: "disk quota exceeded"}.get(e.errno, e.strerror or type(e).__name__)
+    where = e.filename if e.filename is not None else ""
+    return f"{where}: {what}" if where else str(e).splitlines()[0] if str(e) else what
 
-    logging.basicConfig(level=logging.DEBUG if verbose else logging.INFO, format="%(message)s",
-                        handlers=[RichHandler(console=Console(stderr=True), show_path=False)], force=True)
+
+class _StderrHandler(logging.Handler):
+    """``ipm: warning: ...`` lines on stderr (the CLI owns the console; results stay on stdout)."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            level = record.levelname.lower()
+            sys.stderr.write(f"ipm: {level}: {record.getMessage()}\n" if record.levelno >= logging.WARNING
+                             else f"{record.getMessage()}\n")
+        except Exception:  # logging must never raise into the program
+            self.handleError(record)
+
+
+def setup_logging(level: str = "info") -> None:
+    """Route the library's log records (logger ``ipm`` and below) to stderr at ``level``."""
+    root = logging.getLogger("ipm")
+    for h in list(root.handlers):
+        if isinstance(h, _StderrHandler):
+            root.removeHandler(h)
+    root.addHandler(_StderrHandler())
+    root.setLevel(_LEVELS[level])
+    logging.captureWarnings(True)
+    pyw = logging.getLogger("py.warnings")
+    if not any(isinstance(h, _StderrHandler) for h in pyw.handlers):
+        pyw.addHandler(_StderrHandler())
+    pyw.setLevel(logging.ERROR if level == "error" else logging.WARNING)
+
+
+def set_threads(n: int) -> None:
+    """Use ``n`` torch CPU threads: set now if torch is loaded, else through ``OMP_NUM_THREADS`` (read when
+    torch loads), so that ``ipm --help`` does not pay for importing torch."""
+    import os
+
+    os.environ["OMP_NUM_THREADS"] = str(n)
+    if "torch" in sys.modules:
+        sys.modules["torch"].set_num_threads(n)
 
 
 def resolve_device(name: str) -> torch.device:
     """``auto`` -> cuda if available else cpu; ``cpu``; ``cuda`` (error if unavailable)."""
+    import torch
+
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if name == "cpu":
@@ -50,6 +95,8 @@ def seed_everything(seed: int) -> np.random.Generator:
     import random
 
     import nlopt
+    import numpy as np
+    import torch
 
     random.seed(seed)
     np.random.seed(seed % (2**32))
@@ -63,7 +110,7 @@ PresetOpt = Annotated[str | None, typer.Option("--preset", help="start from a na
 ParamsOpt = Annotated[Path | None, typer.Option("--params", help="parameter file (JSON: {generator, params})")]
 SetOpt = Annotated[list[str] | None, typer.Option("--set", help="NAME=VALUE, repeatable")]
 RandomOpt = Annotated[bool, typer.Option("--random", help="sample parameters uniformly within their bounds")]
-SeedOpt = Annotated[int, typer.Option("--seed", help="random seed")]
+SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="random seed (0 or more)")]
 LibraryOpt = Annotated[list[Path] | None, typer.Option("--library", help="folder of macro node JSON files")]
 DeviceOpt = Annotated[str, typer.Option("--device", help="auto, cpu or cuda")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="print JSON on stdout")]

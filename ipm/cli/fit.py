@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -14,7 +16,8 @@ from ipm.cli.common import DeviceOpt, JsonOpt, LibraryOpt, PresetOpt, SeedOpt, U
 def register(app: typer.Typer) -> None:
     @app.command()
     def fit(
-        gen: Annotated[str, typer.Argument(help="generator name, tree preset, or tree file (.json)")],
+        gen: Annotated[str | None, typer.Argument(help="generator name, tree preset, or tree file (.json); "
+                                                  "with --resume, the run's own")] = None,
         output: Annotated[Path | None, typer.Option("-o", "--output", help="run folder")] = None,
         masks: Annotated[Path | None, typer.Option(help="mask folder: view_000.png ... + cameras.json")] = None,
         target_mesh: Annotated[Path | None, typer.Option("--target-mesh", help="mesh to match (Chamfer)")] = None,
@@ -48,8 +51,18 @@ def register(app: typer.Typer) -> None:
 
         if resume is None and output is None:
             raise UsageError("expected -o RUN_DIR (or --resume RUN_DIR)")
+        if resume is not None and output is not None and output != resume:
+            raise UsageError("--resume RUN_DIR continues that folder; leave out -o or give the same folder")
+        if gen is None:
+            if resume is None:
+                raise UsageError("expected a generator: ipm fit GEN ... (see ipm list generators)")
+            gen = _run_generator(resume)
         if resume is None and (masks is None) == (target_mesh is None):
             raise UsageError("expected exactly one target: --masks DIR or --target-mesh MESH")
+        if not math.isfinite(prior) or prior < 0:
+            raise UsageError(f"--prior: expected a finite weight >= 0, got {prior}")
+        if lr is not None and not (math.isfinite(lr) and lr > 0):
+            raise UsageError(f"--lr: expected a finite step > 0, got {lr}")
         if budget < 1:
             raise UsageError(f"--budget: expected at least 1 evaluation, got {budget}")
         if up not in ("y", "z"):
@@ -60,6 +73,8 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--masks: folder not found: {masks}")
         if target_mesh is not None and not target_mesh.is_file():
             raise UsageError(f"--target-mesh: file not found: {target_mesh}")
+        if output is not None and output.exists() and not output.is_dir():
+            raise UsageError(f"run folder {output} is a file; expected a new or empty folder")
         if output is not None and output.exists() and resume is None and any(output.iterdir()):
             raise UsageError(f"run folder {output} exists and is not empty; choose a new folder or --resume it")
         fixed = dict(parse_assignment(s) for s in fix or [])
@@ -103,3 +118,16 @@ def register(app: typer.Typer) -> None:
                "wall_time_s": round(result.wall_time_s, 2), **{k: v for k, v in result.scores.items()}}
         emit(out, json_out)
         sys.stdout.flush()
+
+
+def _run_generator(run_dir: Path) -> str:
+    """The generator a run folder was fitted with (its ``settings.json``), for ``--resume`` alone."""
+    settings = run_dir / "settings.json"
+    if not settings.is_file():
+        raise UsageError(f"--resume: {run_dir} is not a run folder (no settings.json)")
+    try:
+        saved = json.loads(settings.read_text())
+        return str(saved.get("source") or saved["generator"])
+    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, AttributeError):
+        raise UsageError(f"--resume: {settings} is not a run's settings file (expected JSON with a "
+                         "generator)") from None

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import io
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
-import numpy as np
 import typer
 
 from ipm.cli.common import (
@@ -26,8 +25,16 @@ from ipm.cli.common import (
     seed_everything,
 )
 
+if TYPE_CHECKING:
+    import numpy as np
+
+# The largest Jacobian written (its array alone; the work to fill it grows with it)
+MAX_JACOBIAN_BYTES = 2**30
+
 
 def _load_points(path: Path) -> np.ndarray:
+    import numpy as np
+
     if not path.is_file():
         raise UsageError(f"points file not found: {path}")
     try:
@@ -64,6 +71,7 @@ def register(app: typer.Typer) -> None:
         json_out: JsonOpt = False,
     ) -> None:
         """Jacobian of a generator's output: SDF (N, n+3) w.r.t. parameters and position; mesh (3V, n)."""
+        import numpy as np
         import torch
 
         from ipm.generators import get_generator
@@ -92,6 +100,12 @@ def register(app: typer.Typer) -> None:
         out: dict[str, np.ndarray] = {}
         if g.kind == "sdf":
             tree = g.tree_for(discrete)
+            n_rows = len(_load_points(points)) if points is not None else n_points
+            need = n_rows * (len(names) + 3) * dt.itemsize
+            if need > MAX_JACOBIAN_BYTES:
+                raise UsageError(f"the Jacobian of {n_rows} points x {len(names) + 3} columns would take "
+                                 f"{need / 2**30:.1f} GiB; the limit is {MAX_JACOBIAN_BYTES / 2**30:g} GiB "
+                                 f"(at most {MAX_JACOBIAN_BYTES // ((len(names) + 3) * dt.itemsize)} points here)")
             if points is not None:
                 pts = torch.as_tensor(_load_points(points), dtype=dt, device=dev)
             else:

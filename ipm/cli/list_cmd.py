@@ -10,6 +10,9 @@ import typer
 from ipm.cli.common import JsonOpt, LibraryOpt, UsageError, emit
 
 WHAT = ("generators", "nodes", "presets")
+HELP = {"generators": "procedural generators: kind, parameter counts, presets",
+        "nodes": "SDF node types: dimension, children, parameters",
+        "presets": "named starting points of every generator and tree"}
 
 
 def _generators() -> list[dict]:
@@ -53,11 +56,15 @@ def _presets() -> list[dict]:
 def register(app: typer.Typer) -> None:
     @app.command("list")
     def list_cmd(
-        what: Annotated[str, typer.Argument(help="generators, nodes or presets")],
+        what: Annotated[str | None, typer.Argument(help="generators, nodes or presets")] = None,
         json_out: JsonOpt = False,
         library: LibraryOpt = None,
     ) -> None:
         """List registered generators, SDF node types, or presets."""
+        if what is None:  # what can be listed (cheap: no generator is loaded)
+            emit({w: f"ipm list {w}" for w in WHAT} if json_out else
+                 "\n".join(f"ipm list {w:<11} {HELP[w]}" for w in WHAT), json_out)
+            return
         if what not in WHAT:
             raise UsageError(f"ipm list: expected one of {', '.join(WHAT)}, got {what!r}")
         if library:

@@ -15,6 +15,7 @@ from typing import Any, Literal
 
 import torch
 
+from ipm.errors import InputError
 from ipm.params import ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -31,7 +32,7 @@ def register_generator(name: str, *, from_file: Callable[[str], Generator] | Non
 
     def deco(factory):
         if name in GENERATORS:
-            raise ValueError(f"generator {name!r} is registered twice")
+            raise InputError(f"generator {name!r} is registered twice")
         GENERATORS[name] = factory
         if from_file is not None:
             FILE_LOADERS[name] = from_file
@@ -58,7 +59,7 @@ class Generator(ABC):
         base = dict(self.spec.defaults())
         if preset is not None:
             if preset not in self.presets:
-                raise ValueError(f"unknown preset {preset!r} for {self.name}; "
+                raise InputError(f"unknown preset {preset!r} for {self.name}; "
                                  f"known: {', '.join(sorted(self.presets)) or '(none)'}")
             base.update(self.presets[preset])
         base.update(overrides or {})
@@ -106,7 +107,7 @@ def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
         if kind is None or kind == "sdftree":
             return SdfTreeGenerator.from_file(name)
         if kind not in FILE_LOADERS:
-            raise ValueError(f"{name}: declares generator {kind!r}, which has no file format; files can "
+            raise InputError(f"{name}: declares generator {kind!r}, which has no file format; files can "
                              f"hold: sdftree, {', '.join(sorted(FILE_LOADERS))}")
         return FILE_LOADERS[kind](name)
     if name in tree_presets():
@@ -115,7 +116,7 @@ def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
 
     if name in TREE_PRESETS:
         return MeshTreeGenerator.from_preset(name)
-    raise ValueError(f"unknown generator {name!r}; registered: {', '.join(sorted(GENERATORS))}; "
+    raise InputError(f"unknown generator {name!r}; registered: {', '.join(sorted(GENERATORS))}; "
                      f"tree presets: {', '.join(sorted(tree_presets()))}; mesh tree presets: "
                      f"{', '.join(sorted(TREE_PRESETS))}; or pass a generator file (.json)")
 
@@ -196,5 +197,5 @@ class ValuesField(ABC):
     def with_theta(self, theta: torch.Tensor):
         vals = theta.detach().cpu().double().tolist()
         if len(vals) != self.spec.n_continuous:
-            raise ValueError(f"expected theta of length {self.spec.n_continuous}, got {len(vals)}")
+            raise InputError(f"expected theta of length {self.spec.n_continuous}, got {len(vals)}")
         return self.with_values(dict(zip((p.name for p in self.spec.continuous), vals)))

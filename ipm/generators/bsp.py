@@ -52,6 +52,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.generators.base import Generator, ValuesField, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
@@ -264,12 +265,12 @@ class BspGenerator(Generator):
                  values: Mapping[str, float] | None = None, *, extent: float = 1.5, relax: float = 1.0,
                  temperature: float = 0.02, seed: int = 0, name: str = "bsp"):
         if isinstance(planes, bool) or not (isinstance(planes, (int, np.integer)) and planes >= 1):
-            raise ValueError(f"planes: expected a positive integer, got {planes!r}")
+            raise InputError(f"planes: expected a positive integer, got {planes!r}")
         if isinstance(convexes, bool) or not (isinstance(convexes, (int, np.integer)) and convexes >= 1):
-            raise ValueError(f"convexes: expected a positive integer, got {convexes!r}")
+            raise InputError(f"convexes: expected a positive integer, got {convexes!r}")
         for label, v in (("extent", extent), ("relax", relax), ("temperature", temperature)):
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{label}: expected a positive number, got {v!r}")
+                raise InputError(f"{label}: expected a positive number, got {v!r}")
         self.name = name
         self.n_planes, self.n_convexes = int(planes), int(convexes)
         self.extent, self.relax, self.temperature = float(extent), float(relax), float(temperature)
@@ -277,16 +278,16 @@ class BspGenerator(Generator):
         if selection is not None:
             sel = np.asarray(selection)
             if sel.shape != (self.n_planes, self.n_convexes):
-                raise ValueError(f"selection: expected shape ({self.n_planes}, {self.n_convexes}), got {sel.shape}")
+                raise InputError(f"selection: expected shape ({self.n_planes}, {self.n_convexes}), got {sel.shape}")
             if not np.isin(sel, (0, 1)).all():
-                raise ValueError("selection: expected a binary (0/1) matrix, got other values")
+                raise InputError("selection: expected a binary (0/1) matrix, got other values")
             self.selection = sel.astype(bool)
         self.presets = {}
         default = self._default_values(seed)
         if values is not None:
             unknown = set(values) - set(default)
             if unknown:
-                raise ValueError(f"unknown parameter(s) {', '.join(sorted(unknown)[:5])}; expected plane<i>.nx|ny|nz|d"
+                raise InputError(f"unknown parameter(s) {', '.join(sorted(unknown)[:5])}; expected plane<i>.nx|ny|nz|d"
                                  + ("" if self.selection is not None else ", sel<i>.<j> or conv<j>.w")
                                  + f" with i < {self.n_planes}, j < {self.n_convexes}")
             default.update({k: float(v) for k, v in values.items()})
@@ -400,18 +401,18 @@ class BspGenerator(Generator):
     def from_json(data: Mapping) -> BspGenerator:
         """A generator from :meth:`to_json`'s document; ``ValueError`` says what is missing or wrong."""
         if not isinstance(data, Mapping) or data.get("generator") != FORMAT:
-            raise ValueError(f"bsp file: expected an object with \"generator\": \"{FORMAT}\", "
+            raise InputError(f"bsp file: expected an object with \"generator\": \"{FORMAT}\", "
                              f"got {str(data.get('generator') if isinstance(data, Mapping) else data)[:40]!r}")
         missing = [k for k in ("planes", "convexes", "params") if k not in data]
         if missing:
-            raise ValueError(f"bsp file: expected fields planes, convexes, params; missing {', '.join(missing)}")
+            raise InputError(f"bsp file: expected fields planes, convexes, params; missing {', '.join(missing)}")
         if not isinstance(data["params"], Mapping):
-            raise ValueError("bsp file: expected 'params' to be an object of name: number")
+            raise InputError("bsp file: expected 'params' to be an object of name: number")
         try:
             kw = {k: float(data[k]) for k in ("extent", "relax", "temperature") if k in data}
             p, c = int(data["planes"]), int(data["convexes"])
         except (TypeError, ValueError):
-            raise ValueError("bsp file: expected numbers for planes, convexes, extent, relax, temperature") from None
+            raise InputError("bsp file: expected numbers for planes, convexes, extent, relax, temperature") from None
         return BspGenerator(p, c, data.get("selection"), dict(data["params"]), **kw)
 
     @staticmethod
@@ -419,9 +420,9 @@ class BspGenerator(Generator):
         """Load a file written by :meth:`to_json` (``ipm convert --to bsp``)."""
         path = Path(path)
         if not path.is_file():
-            raise ValueError(f"bsp file: expected an existing file, got {path}")
+            raise InputError(f"bsp file: expected an existing file, got {path}")
         try:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as e:
-            raise ValueError(f"bsp file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+            raise InputError(f"bsp file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
         return BspGenerator.from_json(data)

@@ -41,6 +41,7 @@ from collections.abc import Mapping
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.generators import _meshkit as mk
 from ipm.generators._meshkit import smul
 from ipm.generators.base import Generator, register_generator
@@ -148,7 +149,7 @@ class BuildingGenerator(Generator):
         values (defaults where absent). Groups: walls, windows, balconies, doors, roof."""
         n = len(self._names)
         if theta.ndim != 1 or theta.shape[0] != n:
-            raise ValueError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
+            raise InputError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
         d = self._discrete(discrete)
         p = dict(zip(self._names, theta.split(1)))
         S, F, W = d["sections"], d["floors"], d["windows"]

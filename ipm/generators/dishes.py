@@ -45,6 +45,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.generators import _meshkit as mk
 from ipm.generators._meshkit import lift, sadd, smul, ssub
 from ipm.generators.base import Generator, register_generator
@@ -80,9 +81,9 @@ class DishLod:
         for f in fields(self):
             v = getattr(self, f.name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < mins[f.name]:
-                raise ValueError(f"lod {f.name}: expected an integer >= {mins[f.name]}, got {v!r}")
+                raise InputError(f"lod {f.name}: expected an integer >= {mins[f.name]}, got {v!r}")
         if self.rim % 2 == 0:
-            raise ValueError(f"lod rim: expected an odd number of rim samples, got {self.rim}")
+            raise InputError(f"lod rim: expected an odd number of rim samples, got {self.rim}")
 
 
 LODS: dict[str, DishLod] = {
@@ -100,11 +101,11 @@ def resolve_lod(lod: DishLod | Mapping | str | None) -> DishLod:
         return lod
     if isinstance(lod, str):
         if lod not in LODS:
-            raise ValueError(f"lod: expected one of {', '.join(LODS)}, got {lod!r}")
+            raise InputError(f"lod: expected one of {', '.join(LODS)}, got {lod!r}")
         return LODS[lod]
     if isinstance(lod, Mapping):
         return dataclass_from(DishLod, lod, "lod")
-    raise ValueError(f"lod: expected None, a name, a dict or a DishLod, got {type(lod).__name__}")
+    raise InputError(f"lod: expected None, a name, a dict or a DishLod, got {type(lod).__name__}")
 
 
 # ----------------------------------------------------------------------------------------------
@@ -122,7 +123,7 @@ _LIFT = (0.15, 0.08, 0.0, -0.08, -0.15)
 def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
     """The parameters of a dish with ``n_radii`` profile radii (58 continuous + ``has_handle`` for 9)."""
     if n_radii < 3:
-        raise ValueError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
+        raise InputError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
     ps = [_f("height", 1.0, 0.02, 4.0, "total height, base to the top of the rim")]
     ps += [_f(f"radius_{i}", 0.4, 0.02, 2.0, f"outer radius at height {i}/{n_radii - 1} of the wall")
            for i in range(n_radii)]
@@ -246,7 +247,7 @@ class DishesGenerator(Generator):
     def _check(self, theta: torch.Tensor, discrete: Mapping[str, int], lod) -> tuple[int, DishLod]:
         n = len(self._names)
         if theta.ndim != 1 or theta.shape[0] != n:
-            raise ValueError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
+            raise InputError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
         prm = self.spec["has_handle"]
         has_handle = prm.check(discrete.get("has_handle", prm.default))
         return int(has_handle), resolve_lod(lod)

@@ -35,6 +35,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.generators.base import Generator, ValuesField, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
@@ -204,9 +205,9 @@ class PerturbGenerator(Generator):
     def __init__(self, perturbations: int = 6, values: Mapping[str, float] | None = None, *,
                  extent: float = 1.5, name: str = "perturb"):
         if isinstance(perturbations, bool) or not isinstance(perturbations, (int, np.integer)) or perturbations < 0:
-            raise ValueError(f"perturbations: expected an integer >= 0, got {perturbations!r}")
+            raise InputError(f"perturbations: expected an integer >= 0, got {perturbations!r}")
         if not (isinstance(extent, (int, float)) and np.isfinite(extent) and extent > 0):
-            raise ValueError(f"extent: expected a positive number, got {extent!r}")
+            raise InputError(f"extent: expected a positive number, got {extent!r}")
         self.name = name
         self.n = int(perturbations)
         self.extent = float(extent)
@@ -215,7 +216,7 @@ class PerturbGenerator(Generator):
         if values is not None:
             unknown = set(values) - set(default)
             if unknown:
-                raise ValueError(f"unknown parameter(s) {', '.join(sorted(unknown)[:5])}; expected "
+                raise InputError(f"unknown parameter(s) {', '.join(sorted(unknown)[:5])}; expected "
                                  f"base.<{'|'.join(BASE)}> or p<i>.<{'|'.join(PERT)}> with i < {self.n}")
             default.update({k: float(v) for k, v in values.items()})
         self.spec = ParamSpec(tuple(self._param(k, v) for k, v in default.items()))
@@ -290,15 +291,15 @@ class PerturbGenerator(Generator):
     def from_json(data: Mapping) -> PerturbGenerator:
         """A generator from :meth:`to_json`'s document; ``ValueError`` says what is missing or wrong."""
         if not isinstance(data, Mapping) or data.get("generator") != FORMAT:
-            raise ValueError(f"perturb file: expected an object with \"generator\": \"{FORMAT}\", "
+            raise InputError(f"perturb file: expected an object with \"generator\": \"{FORMAT}\", "
                              f"got {str(data.get('generator') if isinstance(data, Mapping) else data)[:40]!r}")
         if "perturbations" not in data or not isinstance(data.get("params"), Mapping):
-            raise ValueError("perturb file: expected fields perturbations (a count) and params (an object)")
+            raise InputError("perturb file: expected fields perturbations (a count) and params (an object)")
         try:
             n = int(data["perturbations"])
             kw = {"extent": float(data["extent"])} if "extent" in data else {}
         except (TypeError, ValueError):
-            raise ValueError("perturb file: expected numbers for perturbations and extent") from None
+            raise InputError("perturb file: expected numbers for perturbations and extent") from None
         return PerturbGenerator(n, dict(data["params"]), **kw)
 
     @staticmethod
@@ -306,9 +307,9 @@ class PerturbGenerator(Generator):
         """Load a file written by :meth:`to_json` (``ipm convert --to perturb``)."""
         path = Path(path)
         if not path.is_file():
-            raise ValueError(f"perturb file: expected an existing file, got {path}")
+            raise InputError(f"perturb file: expected an existing file, got {path}")
         try:
             data = json.loads(path.read_text())
         except json.JSONDecodeError as e:
-            raise ValueError(f"perturb file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+            raise InputError(f"perturb file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
         return PerturbGenerator.from_json(data)

@@ -10,6 +10,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+from ipm.errors import InputError
 from ipm.io.atomic import atomic_path, write_text
 from ipm.types import TriMesh
 
@@ -59,10 +60,10 @@ def export_mesh(mesh: TriMesh, path: str | Path, metadata: dict | None = None, *
     path = Path(path)
     fmt = path.suffix.lower()
     if fmt not in EXPORTERS:
-        raise ValueError(f"output {path}: expected a suffix among {', '.join(sorted(EXPORTERS))}, "
+        raise InputError(f"output {path}: expected a suffix among {', '.join(sorted(EXPORTERS))}, "
                          f"got {fmt or '(none)'}")
     if mesh.n_faces == 0:
-        raise ValueError("the mesh is empty (no faces): nothing to export")
+        raise InputError("the mesh is empty (no faces): nothing to export")
     meta = dict(metadata or {})
     meta["ipm_version"] = __version__
     tm = mesh.to_trimesh()

@@ -9,19 +9,16 @@ all.
 
 from __future__ import annotations
 
-import contextlib
-import os
 import re
-import shutil
-import tempfile
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from ipm.io.atomic import atomic_path, write_text
+from ipm.errors import InputError
+from ipm.io.atomic import atomic_path, staged_directory, write_text  # noqa: F401  (staged_directory: re-export)
 from ipm.render.camera import cameras_to_json, load_cameras
 from ipm.types import Camera
 
@@ -59,7 +56,7 @@ def read_mask(path: str | Path) -> np.ndarray:
             else:
                 arr = np.asarray(im.convert("L"))
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-        raise ValueError(f"mask {path}: expected a PNG image, got an unreadable file "
+        raise InputError(f"mask {path}: expected a PNG image, got an unreadable file "
                          f"({type(e).__name__})") from None
     return arr > 127
 
@@ -70,7 +67,7 @@ def write_mask(path: str | Path, mask) -> Path:
 
     arr = np.asarray(mask.detach().cpu() if torch.is_tensor(mask) else mask)
     if arr.ndim != 2:
-        raise ValueError(f"mask: expected a (H, W) array, got shape {arr.shape}")
+        raise InputError(f"mask: expected a (H, W) array, got shape {arr.shape}")
     img = Image.fromarray(np.where(arr > (0.5 if arr.dtype.kind == "f" else 0), 255, 0).astype(np.uint8), "L")
     with atomic_path(path) as tmp:
         img.save(tmp, format="PNG")
@@ -81,14 +78,14 @@ def save_mask_set(folder: str | Path, masks, cameras: Sequence[Camera]) -> list[
     """Write ``view_###.png`` for each mask (N, H, W) and ``cameras.json``; returns the paths written."""
     folder = Path(folder)
     if len(masks) != len(cameras):
-        raise ValueError(f"mask set: expected one camera per mask, got {len(masks)} masks and "
+        raise InputError(f"mask set: expected one camera per mask, got {len(masks)} masks and "
                          f"{len(cameras)} cameras")
     folder.mkdir(parents=True, exist_ok=True)
     paths = []
     for i, (m, cam) in enumerate(zip(masks, cameras)):
         h, w = (m.shape[0], m.shape[1])
         if (w, h) != (cam.width, cam.height):
-            raise ValueError(f"mask {i}: expected {cam.width}x{cam.height} like its camera, got {w}x{h}")
+            raise InputError(f"mask {i}: expected {cam.width}x{cam.height} like its camera, got {w}x{h}")
         paths.append(write_mask(folder / view_name(i), m))
     paths.append(write_text(folder / CAMERAS_FILE, cameras_to_json(cameras)))
     return paths
@@ -105,11 +102,11 @@ def load_mask_set(folder: str | Path) -> MaskSet:
     """
     folder = Path(folder)
     if not folder.is_dir():
-        raise ValueError(f"mask set: expected a folder with view_000.png ... and {CAMERAS_FILE}, got "
+        raise InputError(f"mask set: expected a folder with view_000.png ... and {CAMERAS_FILE}, got "
                          f"{folder} ({'a file' if folder.exists() else 'missing'})")
     cam_path = folder / CAMERAS_FILE
     if not cam_path.is_file():
-        raise ValueError(f"mask set {folder}: expected {CAMERAS_FILE} in the folder, got none")
+        raise InputError(f"mask set {folder}: expected {CAMERAS_FILE} in the folder, got none")
     cameras = load_cameras(cam_path)
     found = {}
     for p in folder.iterdir():
@@ -117,20 +114,20 @@ def load_mask_set(folder: str | Path) -> MaskSet:
         if m:
             found[int(m.group(1))] = p
     if not found:
-        raise ValueError(f"mask set {folder}: expected masks view_000.png ..., got none")
+        raise InputError(f"mask set {folder}: expected masks view_000.png ..., got none")
     expected = list(range(len(found)))
     if sorted(found) != expected:
         missing = sorted(set(range(max(found) + 1)) - set(found))
-        raise ValueError(f"mask set {folder}: expected consecutive views from view_000.png, got a gap at "
+        raise InputError(f"mask set {folder}: expected consecutive views from view_000.png, got a gap at "
                          f"{view_name(missing[0])}")
     if len(found) != len(cameras):
-        raise ValueError(f"mask set {folder}: expected as many masks as cameras, got {len(found)} masks and "
+        raise InputError(f"mask set {folder}: expected as many masks as cameras, got {len(found)} masks and "
                          f"{len(cameras)} entries in {CAMERAS_FILE}")
     arrays = []
     for i, cam in enumerate(cameras):
         arr = read_mask(found[i])
         if arr.shape != (cam.height, cam.width):
-            raise ValueError(f"mask {found[i]}: expected {cam.width}x{cam.height} pixels (from "
+            raise InputError(f"mask {found[i]}: expected {cam.width}x{cam.height} pixels (from "
                              f"{CAMERAS_FILE}), got {arr.shape[1]}x{arr.shape[0]}")
         arrays.append(arr)
     H = max(a.shape[0] for a in arrays)
@@ -139,25 +136,3 @@ def load_mask_set(folder: str | Path) -> MaskSet:
     for i, a in enumerate(arrays):
         stack[i, : a.shape[0], : a.shape[1]] = a
     return MaskSet(torch.from_numpy(stack), tuple(cameras), tuple(found[i] for i in expected))
-
-
-@contextlib.contextmanager
-def staged_directory(out: str | Path) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``out``; on success its files move into ``out`` (created
-    if needed; existing files of the same names are replaced, each atomically); on error it is removed
-    and ``out`` is left as it was."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"output {out}: expected a folder, got a file")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    try:
-        yield tmp
-        if not out.exists():
-            os.replace(tmp, out)
-        else:
-            for p in sorted(tmp.iterdir()):
-                os.replace(p, out / p.name)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)

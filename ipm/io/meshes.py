@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.types import TriMesh
 
 log = logging.getLogger(__name__)
@@ -39,7 +40,7 @@ def to_y_up(verts: torch.Tensor, up: str) -> torch.Tensor:
     try:
         return UP_AXES[up.lower()](verts)
     except KeyError:
-        raise ValueError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}") from None
+        raise InputError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}") from None
 
 
 def normalize_mesh(mesh: TriMesh) -> TriMesh:
@@ -51,7 +52,7 @@ def normalize_mesh(mesh: TriMesh) -> TriMesh:
     from ipm.metrics import unit_sphere_frame
 
     if mesh.n_verts == 0 or mesh.n_faces == 0:
-        raise ValueError(f"normalize: expected a mesh with faces, got {mesh.n_verts} vertices and "
+        raise InputError(f"normalize: expected a mesh with faces, got {mesh.n_verts} vertices and "
                          f"{mesh.n_faces} faces")
     used = mesh.verts[torch.unique(mesh.faces)].detach().cpu().double().numpy()
     center, scale = unit_sphere_frame(used)
@@ -78,27 +79,27 @@ def load_mesh(path: str | Path, *, up: str = "y", normalize: bool = True,
 
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"mesh file: expected an existing file, got {path}")
+        raise InputError(f"mesh file: expected an existing file, got {path}")
     if path.suffix.lower() not in MESH_SUFFIXES:
-        raise ValueError(f"mesh file {path}: expected a suffix among {', '.join(MESH_SUFFIXES)}, "
+        raise InputError(f"mesh file {path}: expected a suffix among {', '.join(MESH_SUFFIXES)}, "
                          f"got {path.suffix or '(none)'}")
     if up.lower() not in UP_AXES:
-        raise ValueError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}")
+        raise InputError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}")
     kwargs = {"skip_materials": True} if path.suffix.lower() in (".obj", ".ply") else {}
     try:
         tm = trimesh.load_mesh(str(path), process=False, **kwargs)
     except Exception as e:  # trimesh raises many kinds of errors for broken files
-        raise ValueError(f"mesh file {path}: expected a readable {path.suffix} mesh, got an error: "
+        raise InputError(f"mesh file {path}: expected a readable {path.suffix} mesh, got an error: "
                          f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
     faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     verts = np.asarray(getattr(tm, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     if len(faces) == 0:
-        raise ValueError(f"mesh file {path}: expected triangles, got none")
+        raise InputError(f"mesh file {path}: expected triangles, got none")
     if not np.isfinite(verts).all():
-        raise ValueError(f"mesh file {path}: expected finite vertex coordinates, got NaN or inf")
+        raise InputError(f"mesh file {path}: expected finite vertex coordinates, got NaN or inf")
     mesh = TriMesh(to_y_up(torch.as_tensor(verts, dtype=dtype), up), torch.as_tensor(faces))
     if surface_area(mesh) <= 0:
-        raise ValueError(f"mesh file {path}: expected a mesh with nonzero surface area, got zero-area "
+        raise InputError(f"mesh file {path}: expected a mesh with nonzero surface area, got zero-area "
                          f"triangles only")
     log.debug("loaded %s: %d vertices, %d faces", path, mesh.n_verts, mesh.n_faces)
     return normalize_mesh(mesh) if normalize else mesh
