@@ -226,13 +226,9 @@ def parse_assignment(text: str) -> tuple[str, float]:
 
 def load_param_file(path: str | Path) -> tuple[str | None, dict[str, object]]:
     """Read ``{"generator": ..., "params": {...}}``; return (generator name or None, raw params)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"parameter file not found: {path}")
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"parameter file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+    from ipm.files import read_json
+
+    data = read_json(path, "parameter file")
     if not isinstance(data, dict) or not isinstance(data.get("params"), dict):
         raise InputError(f"parameter file {path}: expected an object with a 'params' object")
     gen = data.get("generator")

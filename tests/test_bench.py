@@ -12,6 +12,7 @@ import pytest
 from conftest import require_file
 
 from ipm.bench.config import load_experiment
+from ipm.errors import InputError
 from ipm.bench.tables import latex, markdown
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -144,8 +145,8 @@ def test_class_tables_average_targets_and_summarize_against_the_best_other_metho
 
 def test_bad_experiment_files(tmp_path):
     bad = tmp_path / "x.toml"
-    bad.write_text("name = 'x'\n[[targets]]\nname='t'\n")
-    with pytest.raises(ValueError, match="exactly one of mesh or generator"):
+    bad.write_text("name = 'x'\n[[targets]]\nname='t'\n[[methods]]\nname='m'\nmethod='visual-hull'\n")
+    with pytest.raises(InputError, match="exactly one of mesh or generator"):
         load_experiment(bad)
     bad.write_text("[[targets]]\nname='t'\nmesh='m.ply'\n[[methods]]\nname='m'\nmethod='magic'\n")
     with pytest.raises(ValueError, match="unknown method 'magic'"):
@@ -182,7 +183,7 @@ def test_methods_can_have_their_own_seeds(tmp_path):
                      ) == ["a|vh3|1|0", "a|vh3|1|1", "a|vh3|1|2", "a|vh|1|0"]
     assert "seeds" not in load_experiment(exp).method("vh").settings
     exp.write_text(exp.read_text().replace("seeds = [0]\n", "seeds = []\n", 1).replace("seeds = [0, 1, 2]", "seeds = [0]"))
-    with pytest.raises(ValueError, match="seeds must be a non-empty list of integers"):
+    with pytest.raises(InputError, match=r"method vh: Expected `array` of length >= 1 - at `\$.seeds`"):
         load_experiment(exp)
 
 

@@ -176,8 +176,8 @@ class _File(msgspec.Struct, forbid_unknown_fields=True):
     targets: Annotated[list[_TargetFile], Meta(min_length=1)]
     methods: Annotated[list[dict[str, Any]], Meta(min_length=1)]
     name: Annotated[str, Meta(min_length=1)] | None = None
-    views: Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)] = [1]
-    seeds: Annotated[list[Seed], Meta(min_length=1)] = [0]
+    views: Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)] = msgspec.field(default_factory=lambda: [1])
+    seeds: Annotated[list[Seed], Meta(min_length=1)] = msgspec.field(default_factory=lambda: [0])
     budget: Annotated[int, Meta(ge=1, le=10_000_000)] = 1000
     size: Annotated[int, Meta(ge=16, le=MAX_SIZE)] = 256
     heldout_size: Annotated[int, Meta(ge=16, le=MAX_SIZE)] = 256

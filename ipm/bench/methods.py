@@ -104,3 +104,11 @@ def visual_hull(task: Task, settings: dict, budget: int, seed: int) -> Predictio
 
 from ipm.bench import baselines as _baselines  # noqa: E402,F401  (registers sdf-grid and mesh-deform)
 from ipm.bench import universal as _universal  # noqa: E402,F401  (registers bsp and perturb)
+
+
+def check_settings(name: str, settings: dict) -> None:
+    """Interim check (replaced by the methods package): the method must exist."""
+    from ipm.errors import InputError
+
+    if name not in METHODS:
+        raise InputError(f"unknown method {name!r}; known: {', '.join(sorted(METHODS))}")

@@ -101,6 +101,7 @@ def main(argv: list[str] | None = None) -> None:
 
     argv = _global_first(list(sys.argv[1:] if argv is None else argv))
     _STATE["debug"] = "--debug" in argv
+    interrupted = False
     try:
         rc = app(args=argv, prog_name="ipm", standalone_mode=False)
     except _click_exceptions("NoArgsIsHelpError"):
@@ -109,7 +110,7 @@ def main(argv: list[str] | None = None) -> None:
         rc = e.exit_code
     except (*_click_exceptions("Abort"), KeyboardInterrupt):
         error_line("interrupted")
-        rc = 130
+        rc, interrupted = 130, True
     except _click_exceptions("UsageError") as e:
         msg = e.format_message() if hasattr(e, "format_message") else str(e)
         error_line(msg.splitlines()[0] if msg else "invalid usage; see ipm --help")
@@ -135,4 +136,7 @@ def main(argv: list[str] | None = None) -> None:
         sys.stderr.write(f"ipm: internal error: {type(e).__name__}: {first}"
                          f"{'' if _STATE['debug'] else ' (run with --debug for the traceback)'}\n")
         rc = 1
-    sys.exit(rc if isinstance(rc, int) else 0)
+    rc = rc if isinstance(rc, int) else 0
+    if rc == 130 and not interrupted:  # typer turns Ctrl-C into a quiet exit code 130
+        error_line("interrupted")
+    sys.exit(rc)

@@ -60,12 +60,15 @@ def register(app: typer.Typer) -> None:
         mesh = g.to_mesh(values, resolution=resolution, lod=lod)
         if mesh.n_faces == 0:
             raise UsageError(f"{gen}: these parameters give an empty shape (no surface inside the bounds)")
-        export_mesh(mesh, output, g.metadata(values))
+        from ipm.io.atomic import all_or_nothing
+
         result = {"mesh": str(output), "params": str(sidecar_path(output)), "vertices": mesh.n_verts,
                   "faces": mesh.n_faces}
-        if preview is not None:
-            from ipm.render.preview import write_preview
+        with all_or_nothing(output, sidecar_path(output), *([preview] if preview else [])):
+            export_mesh(mesh, output, g.metadata(values))
+            if preview is not None:
+                from ipm.render.preview import write_preview
 
-            write_preview(mesh, preview)
-            result["preview"] = str(preview)
+                write_preview(mesh, preview)
+                result["preview"] = str(preview)
         emit(result, json_out)

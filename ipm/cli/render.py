@@ -72,19 +72,33 @@ def _cameras(views: int | None, cameras: Path | None, masks: Path | None, size: 
             cameras = cameras / "cameras.json"
         if not cameras.is_file():
             raise UsageError(f"cameras file not found: {cameras}")
-        return load_cameras(cameras), None
+        return _check_sizes(load_cameras(cameras), str(cameras)), None
     if masks is not None:
         from ipm.io.masks import load_mask_set
 
         ms = load_mask_set(masks)
-        return list(ms.cameras), ms
+        return _check_sizes(list(ms.cameras), str(masks)), ms
     k = 4 if views is None else views
-    if not 1 <= k <= 256:
-        raise UsageError(f"--views: expected a number of views in 1..256, got {k}")
+    if not 1 <= k <= MAX_VIEWS:
+        raise UsageError(f"--views: expected a number of views in 1..{MAX_VIEWS}, got {k}")
     s = 256 if size is None else size
-    if not 8 <= s <= 8192:
-        raise UsageError(f"--size: expected an image size in 8..8192 pixels, got {s}")
+    if not 8 <= s <= MAX_SIDE:
+        raise UsageError(f"--size: expected an image size in 8..{MAX_SIDE} pixels, got {s}")
     return input_views(k, s), None
+
+
+MAX_SIDE, MAX_VIEWS = 8192, 256
+
+
+def _check_sizes(cams: list, where: str) -> list:
+    """The same limits as --views and --size, for cameras read from a file."""
+    if not 1 <= len(cams) <= MAX_VIEWS:
+        raise UsageError(f"{where}: expected 1..{MAX_VIEWS} cameras, got {len(cams)}")
+    for i, c in enumerate(cams):
+        if not (1 <= c.width <= MAX_SIDE and 1 <= c.height <= MAX_SIDE):
+            raise UsageError(f"{where}: camera {i} asks for {c.width}x{c.height} pixels; each side may be at "
+                             f"most {MAX_SIDE}")
+    return cams
 
 
 def _check_outside(mesh, cameras) -> None:
@@ -144,6 +158,9 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--up: expected y or z, got {up!r}")
         if output.exists() and not output.is_dir():
             raise UsageError(f"output {output}: expected a folder, got a file")
+        from ipm.io.atomic import check_writable
+
+        check_writable(output / CAMERAS_FILE)
         if not 8 <= resolution <= 2048:
             raise UsageError(f"--resolution: expected 8..2048 samples, got {resolution}")
         cams, target = _cameras(views, cameras, masks, size)

@@ -122,15 +122,11 @@ def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
 
 
 def _declared_generator(path: str) -> str | None:
-    """The ``"generator"`` field of a JSON file (None if absent or unreadable: the SDF tree reader
-    then reports the problem)."""
-    import json
-    from pathlib import Path
+    """The ``"generator"`` field of a JSON file (None if absent: an SDF tree); an unreadable file is an
+    :class:`InputError` naming it."""
+    from ipm.files import read_json
 
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return None
+    data = read_json(path, "generator file")
     kind = data.get("generator") if isinstance(data, dict) else None
     return kind if isinstance(kind, str) else None
 

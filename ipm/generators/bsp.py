@@ -43,7 +43,6 @@ selection (stage 2) and the parameter values; ``get_generator(path)`` and ``ipm 
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -418,11 +417,7 @@ class BspGenerator(Generator):
     @staticmethod
     def from_file(path: str | Path) -> BspGenerator:
         """Load a file written by :meth:`to_json` (``ipm convert --to bsp``)."""
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"bsp file: expected an existing file, got {path}")
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise InputError(f"bsp file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+        from ipm.files import read_json
+
+        data = read_json(path, "bsp file")
         return BspGenerator.from_json(data)

@@ -27,7 +27,6 @@ A file (``{"generator": "perturb", "perturbations": N, "extent": E, "params": {.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -305,11 +304,7 @@ class PerturbGenerator(Generator):
     @staticmethod
     def from_file(path: str | Path) -> PerturbGenerator:
         """Load a file written by :meth:`to_json` (``ipm convert --to perturb``)."""
-        path = Path(path)
-        if not path.is_file():
-            raise InputError(f"perturb file: expected an existing file, got {path}")
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as e:
-            raise InputError(f"perturb file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+        from ipm.files import read_json
+
+        data = read_json(path, "perturb file")
         return PerturbGenerator.from_json(data)

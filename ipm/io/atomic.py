@@ -127,3 +127,33 @@ def staged_directory(out: str | Path) -> Iterator[Path]:
     finally:
         if tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def all_or_nothing(*paths: str | Path) -> Iterator[None]:
+    """Several outputs written one after another (a mesh, its sidecar, a preview): if anything inside
+    fails, those of ``paths`` that did not exist before are removed again."""
+    before = {Path(p): Path(p).exists() for p in paths}
+    try:
+        yield
+    except BaseException:
+        for p, existed in before.items():
+            if not existed and p.is_file():
+                p.unlink()
+        raise
+
+
+def check_writable(path: str | Path) -> Path:
+    """Refuse up front (:class:`InputError`) an output under a file or in a folder this process may not
+    write, so that a command fails before its work, not after."""
+    import os
+
+    path = Path(path)
+    anc = path.parent
+    while not anc.exists() and anc != anc.parent:
+        anc = anc.parent
+    if anc.exists() and not anc.is_dir():
+        raise InputError(f"cannot write {path}: {anc} is a file, not a folder")
+    if anc.exists() and not os.access(anc, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write {path}: no permission to write in {anc}")
+    return path
