@@ -26,8 +26,12 @@ demo: $(STAMP) ## run the main job on built-in data and print where the results 
 test: $(STAMP) ## run the full test suite
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile
 
-lint: $(STAMP) ## ruff over the package and tests
+test-fast: $(STAMP) ## the inner loop: everything but the tests marked slow, stop at the first failure
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile -x -m "not slow"
+
+lint: $(STAMP) ## ruff over the package and tests, and the import contracts of docs/architecture.md
 	$(BIN)/ruff check ipm tests benchmarks
+	$(BIN)/lint-imports
 
 bench: $(STAMP) ## speed benchmarks, written under results/perf/
 	$(BIN)/python -m benchmarks.run results/perf
@@ -54,4 +58,4 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test lint bench bench-small table1 table-synthetic table-convert clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-convert clean

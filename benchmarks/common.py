@@ -49,7 +49,7 @@ def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
 
 def write_results(out_dir: Path, name: str, title: str, rows: list[dict], notes: str = "") -> None:
     """Write ``<name>.json`` and a Markdown table ``<name>.md`` with machine, date and command."""
-    from ipm.io.atomic import write_text
+    from ipm.files import write_text
 
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {"machine": machine(), "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),

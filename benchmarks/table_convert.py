@@ -136,7 +136,7 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
 
 def write(out_dir: Path, rows: list[dict], perturb: dict, bsp: dict, quick: bool) -> None:
     import ipm
-    from ipm.io.atomic import write_text
+    from ipm.files import write_text
 
     cols = ["target", "method", "size", "parameters", "seconds", "iou_3d", "chamfer_l1", "vertex_dev_mean_%",
             "vertex_dev_max_%", "normal_deg"]

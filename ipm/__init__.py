@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import logging
 
-__version__ = "0.1.0"
+from ipm.version import __version__
+
+__all__ = ["__version__", "fit"]
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 

@@ -12,8 +12,8 @@ import pytest
 from conftest import require_file
 
 from ipm.bench.config import load_experiment
-from ipm.errors import InputError
 from ipm.bench.tables import latex, markdown
+from ipm.errors import InputError
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL = ROOT / "experiments" / "small.toml"

@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
 from conftest import ROOT, real_path
+
 from ipm.cli import main
 
 MUG = "vessels/ocrtoc_mug.ply"

@@ -14,7 +14,8 @@ from conftest import ROOT, real_path
 from PIL import Image
 
 from ipm.cli import main
-from ipm.io.masks import load_mask_set, save_mask_set, staged_directory
+from ipm.files import staged_directory
+from ipm.io.masks import load_mask_set, save_mask_set
 from ipm.render.camera import input_views, load_cameras
 
 MUG = "vessels/probcomp_mug.obj"

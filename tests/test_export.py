@@ -9,7 +9,7 @@ import pytest
 import torch
 import trimesh
 
-from ipm.io.atomic import atomic_path
+from ipm.files import atomic_path
 from ipm.io.export import export_mesh, sidecar_path
 from ipm.types import TriMesh
 

@@ -144,8 +144,8 @@ class Experiment:
 
 
 # The file's schema (msgspec validates types, ranges and unknown keys; messages give the key's path)
-PosInt = Annotated[int, Meta(ge=1)]
 Seed = Annotated[int, Meta(ge=0)]
+Views = Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)]
 
 
 class _TargetFile(msgspec.Struct, forbid_unknown_fields=True, rename={"cls": "class"}):
@@ -165,7 +165,7 @@ class _MethodKeys(msgspec.Struct, forbid_unknown_fields=True):
 
     name: Annotated[str, Meta(min_length=1)]
     method: str
-    views: Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)] | None = None
+    views: Views | None = None
     targets: list[str] | None = None
     seeds: Annotated[list[Seed], Meta(min_length=1)] | dict[str, Annotated[list[Seed], Meta(min_length=1)]] | None \
         = None
@@ -176,7 +176,7 @@ class _File(msgspec.Struct, forbid_unknown_fields=True):
     targets: Annotated[list[_TargetFile], Meta(min_length=1)]
     methods: Annotated[list[dict[str, Any]], Meta(min_length=1)]
     name: Annotated[str, Meta(min_length=1)] | None = None
-    views: Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)] = msgspec.field(default_factory=lambda: [1])
+    views: Views = msgspec.field(default_factory=lambda: [1])
     seeds: Annotated[list[Seed], Meta(min_length=1)] = msgspec.field(default_factory=lambda: [0])
     budget: Annotated[int, Meta(ge=1, le=10_000_000)] = 1000
     size: Annotated[int, Meta(ge=16, le=MAX_SIZE)] = 256

@@ -222,7 +222,7 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
         raise InputError(f"output {out}: expected a folder, got a file")
     created = not out.exists()
     with _executor(workers, scheduler) as submit:  # a scheduler that cannot be reached fails here
-        from ipm.io.atomic import make_parent
+        from ipm.files import make_parent
 
         make_parent(out / ROWS)
         rows = list(done)

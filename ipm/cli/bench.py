@@ -29,7 +29,7 @@ def register(app: typer.Typer) -> None:
         from ipm.bench.config import load_experiment
         from ipm.bench.harness import run_experiment
         from ipm.bench.tables import class_markdown, class_summary, csv_text, latex, markdown
-        from ipm.io.atomic import write_text
+        from ipm.files import write_text
 
         if workers < 1:
             raise UsageError(f"--workers: expected at least 1, got {workers}")

@@ -142,7 +142,7 @@ def check_output(path: Path, allowed: tuple[str, ...]) -> Path:
         raise UsageError(f"output {path}: expected a suffix among {', '.join(allowed)}, got {path.suffix or '(none)'}")
     if path.exists() and path.is_dir():
         raise UsageError(f"output {path} is a folder; expected a file path")
-    from ipm.io.atomic import check_writable
+    from ipm.files import check_writable
 
     return check_writable(path)
 

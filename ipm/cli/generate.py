@@ -60,7 +60,7 @@ def register(app: typer.Typer) -> None:
         mesh = g.to_mesh(values, resolution=resolution, lod=lod)
         if mesh.n_faces == 0:
             raise UsageError(f"{gen}: these parameters give an empty shape (no surface inside the bounds)")
-        from ipm.io.atomic import all_or_nothing
+        from ipm.files import all_or_nothing
 
         result = {"mesh": str(output), "params": str(sidecar_path(output)), "vertices": mesh.n_verts,
                   "faces": mesh.n_faces}

@@ -74,8 +74,8 @@ def register(app: typer.Typer) -> None:
         import numpy as np
         import torch
 
+        from ipm.files import write_bytes
         from ipm.generators import get_generator
-        from ipm.io.atomic import write_bytes
         from ipm.jacobian import (
             MODES,
             check_mesh_jacobian,

@@ -150,7 +150,8 @@ def register(app: typer.Typer) -> None:
         """Render exact masks (view_000.png ...), cameras.json and shaded previews (preview_000.png ...)."""
         import numpy as np
 
-        from ipm.io.masks import CAMERAS_FILE, save_mask_set, staged_directory, view_name
+        from ipm.files import staged_directory
+        from ipm.io.masks import CAMERAS_FILE, save_mask_set, view_name
         from ipm.render.preview import save_png, shade_fragments
         from ipm.render.raster import rasterize
 
@@ -158,7 +159,7 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--up: expected y or z, got {up!r}")
         if output.exists() and not output.is_dir():
             raise UsageError(f"output {output}: expected a folder, got a file")
-        from ipm.io.atomic import check_writable
+        from ipm.files import check_writable
 
         check_writable(output / CAMERAS_FILE)
         if not 8 <= resolution <= 2048:

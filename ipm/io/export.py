@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ipm.errors import InputError
-from ipm.io.atomic import atomic_path, write_text
+from ipm.files import atomic_path, write_text
 from ipm.types import TriMesh
 
 EXPORTERS: dict[str, Callable] = {}
@@ -55,7 +55,7 @@ def export_mesh(mesh: TriMesh, path: str | Path, metadata: dict | None = None, *
 
     ``metadata`` (generator, params) goes into GLB extras and the ``.params.json`` sidecar.
     """
-    from ipm import __version__
+    from ipm.version import __version__
 
     path = Path(path)
     fmt = path.suffix.lower()

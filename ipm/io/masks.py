@@ -18,7 +18,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
-from ipm.io.atomic import atomic_path, staged_directory, write_text  # noqa: F401  (staged_directory: re-export)
+from ipm.files import atomic_path, write_text
 from ipm.render.camera import cameras_to_json, load_cameras
 from ipm.types import Camera
 

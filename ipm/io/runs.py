@@ -7,7 +7,7 @@ import json
 import os
 from pathlib import Path
 
-from ipm.io.atomic import write_text
+from ipm.files import write_text
 
 SETTINGS = "settings.json"
 TRAJECTORY = "trajectory.jsonl"

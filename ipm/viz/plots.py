@@ -14,7 +14,7 @@ def plot_losses(curves: Mapping[str, Sequence[float]] | Sequence[float], path: s
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ipm.io.atomic import atomic_path
+    from ipm.files import atomic_path
 
     if not isinstance(curves, Mapping):
         curves = {"loss": curves}
