@@ -304,3 +304,39 @@ def test_a_second_bench_on_the_same_folder_is_refused(tmp_path):
             run_experiment(exp, out)
     rows = run_experiment(exp, out)  # released: the run goes ahead
     assert [r["status"] for r in rows] == ["ok"]
+
+
+def test_bench_workers_die_with_their_parent(tmp_path):
+    """A bench killed with SIGKILL leaves no worker processes behind (``harness._die_with_parent``)."""
+    import os
+    import subprocess
+    import sys
+    import time
+
+    script = tmp_path / "parent.py"
+    script.write_text(
+        "import os, signal, time\n"
+        "from concurrent.futures import ProcessPoolExecutor\n"
+        "from ipm.bench.harness import _die_with_parent\n"
+        "pool = ProcessPoolExecutor(2, initializer=_die_with_parent, initargs=(os.getpid(),))\n"
+        "futs = [pool.submit(time.sleep, 120) for _ in range(2)]\n"
+        "time.sleep(1.5)\n"
+        "print(' '.join(str(p) for p in pool._processes), flush=True)\n"
+        "os.kill(os.getpid(), signal.SIGKILL)\n")
+    proc = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=120,
+                          cwd=Path(__file__).resolve().parents[1])
+    pids = [int(p) for p in proc.stdout.split()]
+    assert len(pids) == 2, proc.stderr
+
+    def alive(pid: int) -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return False
+        stat_file = Path(f"/proc/{pid}/stat")  # a zombie waiting for init to reap it counts as gone
+        return not (stat_file.is_file() and stat_file.read_text().split()[2] == "Z")
+
+    deadline = time.time() + 20
+    while any(alive(p) for p in pids) and time.time() < deadline:
+        time.sleep(0.2)
+    assert not any(alive(p) for p in pids), f"workers {pids} outlived their parent"
