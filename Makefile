@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(BIN)/python -m pip install --quiet torch==$(TORCH_VERSION)
-	$(BIN)/python -m pip install --quiet -e '.[dev,viz,dist]'
+	$(BIN)/python -m pip install --quiet -e '.[dev,viz,dist,bench]'
 	@touch $(STAMP)
 
 install: $(STAMP) ## create .venv (torch 2.13 CPU first, then the project)
