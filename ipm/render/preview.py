@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.render.camera import orbit_camera, pixel_rays
 from ipm.render.raster import rasterize
 from ipm.types import Camera, TriMesh
@@ -93,7 +94,7 @@ def save_png(path: str | Path, image: np.ndarray) -> Path:
 
     arr = np.asarray(image)
     if arr.dtype != np.uint8 or arr.ndim not in (2, 3):
-        raise ValueError(f"image: expected a uint8 (H, W) or (H, W, 3) array, got {arr.dtype} {arr.shape}")
+        raise InputError(f"image: expected a uint8 (H, W) or (H, W, 3) array, got {arr.dtype} {arr.shape}")
     with atomic_path(path) as tmp:
         Image.fromarray(arr).save(tmp, format="PNG")
     return Path(path)
