@@ -60,8 +60,9 @@ def run(out_dir: Path) -> list[dict]:
     from ipm.generators import get_generator
     from ipm.render.camera import input_views
     from ipm.render.raster import hard_mask
+    from ipm.render.scan import span_rows, visible_triangles
     from ipm.render.sdf_silhouette import sdf_silhouette
-    from ipm.render.soft import blur_radius, soft_silhouette, span_rows, visible_triangles
+    from ipm.render.soft import blur_radius, soft_silhouette
 
     torch.set_num_threads(2)
     load_before = _loadavg()

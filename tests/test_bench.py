@@ -204,12 +204,12 @@ def _scaled_target_cell(tmp_path, views: int, factor: float) -> tuple[dict, Path
         target = harness.load_target(str(exp.resolve()), "mug").mesh
         return Prediction(scale_about(target, task.cameras[0].eye, factor), 1, 0.0)
 
-    METHODS["_scaled_target"] = scaled
+    METHODS.add("_scaled_target", scaled)
     try:
         out = tmp_path / "out"
         return harness.run_cell(str(exp.resolve()), load_experiment(exp).cells()[0], str(out)), out
     finally:
-        del METHODS["_scaled_target"]
+        METHODS.remove("_scaled_target")
 
 
 def test_one_view_predictions_are_scaled_about_the_eye(tmp_path):

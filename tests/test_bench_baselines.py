@@ -1,4 +1,5 @@
-"""The free-form baselines of ``ipm bench`` (ipm/bench/baselines.py): registration, their building
+"""The free-form baselines of ``ipm bench`` (ipm/bench/methods/sdf_grid.py, mesh_deform.py, and the
+converter methods bsp.py, perturb.py; shared plumbing in ipm/bench/views.py): registration, their building
 blocks against analytic values, input checking, and recovery of simple shapes from 4 views at 64 px.
 
 Recovery thresholds (held-out silhouette IoU over the protocol's 16 held-out views at 64 px) were set
@@ -15,8 +16,11 @@ import numpy as np
 import pytest
 import torch
 
-from ipm.bench import baselines as B
+from ipm.bench import views as V
 from ipm.bench.methods import METHODS, Task
+from ipm.bench.methods import mesh_deform as MD
+from ipm.bench.methods import sdf_grid as SG
+from ipm.errors import InputError
 from ipm.types import TriMesh
 
 SIZE = 64
@@ -59,57 +63,57 @@ def box() -> tuple[TriMesh, Task]:
 # -- registration and settings -----------------------------------------------------------------------
 
 def test_baselines_are_registered():
-    assert METHODS["sdf-grid"] is B.sdf_grid
-    assert METHODS["mesh-deform"] is B.mesh_deform
+    assert METHODS["sdf-grid"] is SG.sdf_grid
+    assert METHODS["mesh-deform"] is MD.mesh_deform
     assert "visual-hull" in METHODS and "ipm" in METHODS
 
 
 @pytest.mark.parametrize("name", ["sdf-grid", "mesh-deform"])
 @pytest.mark.parametrize("settings, budget, match", [
-    ({"resolutoin": 32}, 5, "unknown setting.*resolutoin"),
-    ({"lr": "fast"}, 5, "setting lr: expected float"),
-    ({"sigma_end": -1.0}, 5, r"setting sigma_end: expected a value in"),
+    ({"resolutoin": 32}, 5, "unknown setting 'resolutoin'"),
+    ({"lr": "fast"}, 5, r"setting lr: expected a number in \[1e-06, 1.0\], got 'fast'"),
+    ({"sigma_end": -1.0}, 5, r"setting sigma_end: expected a number in \[0.001, 1000.0\], got -1.0"),
     ({}, 0, "budget: expected at least 1"),
 ])
-def test_bad_settings_are_value_errors(box, name, settings, budget, match):
-    with pytest.raises(ValueError, match=match):
+def test_bad_settings_are_input_errors(box, name, settings, budget, match):
+    with pytest.raises(InputError, match=match):
         METHODS[name](box[1], settings, budget, 0)
 
 
 def test_method_specific_bad_settings(box):
-    with pytest.raises(ValueError, match="init: expected hull or sphere, got 'cube'"):
-        B.sdf_grid(box[1], {"init": "cube"}, 5, 0)
-    with pytest.raises(ValueError, match=r"subdivisions: expected a value in \[1, 5\], got 9"):
-        B.mesh_deform(box[1], {"subdivisions": 9}, 5, 0)
-    with pytest.raises(ValueError, match="setting resolution: expected int, got 32.5"):
-        B.sdf_grid(box[1], {"resolution": 32.5}, 5, 0)
+    with pytest.raises(InputError, match="init: expected one of 'hull', 'sphere', got 'cube'"):
+        SG.sdf_grid(box[1], {"init": "cube"}, 5, 0)
+    with pytest.raises(InputError, match=r"subdivisions: expected an integer in \[1, 5\], got 9"):
+        MD.mesh_deform(box[1], {"subdivisions": 9}, 5, 0)
+    with pytest.raises(InputError, match=r"setting resolution: expected an integer in \[8, 160\], got 32.5"):
+        SG.sdf_grid(box[1], {"resolution": 32.5}, 5, 0)
 
 
 def test_bad_tasks_are_value_errors(box):
     task = box[1]
     empty = Task(task.masks.copy(), task.cameras)
     empty.masks[1] = False
-    with pytest.raises(ValueError, match=r"empty mask\(s\) \[1\]"):
-        B.sdf_grid(empty, {}, 5, 0)
-    with pytest.raises(ValueError, match="one camera per mask"):
-        B.mesh_deform(Task(task.masks, task.cameras[:2]), {}, 5, 0)
+    with pytest.raises(InputError, match=r"empty mask\(s\) \[1\]"):
+        SG.sdf_grid(empty, {}, 5, 0)
+    with pytest.raises(InputError, match="one camera per mask"):
+        MD.mesh_deform(Task(task.masks, task.cameras[:2]), {}, 5, 0)
     # masks that agree on nothing: the first view sees the object only at the far left, the second at
     # the far right
     bad = Task(np.zeros_like(task.masks[:2]), task.cameras[:2])
     bad.masks[0, :, :2] = True
     bad.masks[1, :, -2:] = True
-    with pytest.raises(ValueError, match="visual hull is empty"):
-        B.mesh_deform(bad, {}, 5, 0)
+    with pytest.raises(InputError, match="visual hull is empty"):
+        MD.mesh_deform(bad, {}, 5, 0)
 
 
 # -- building blocks ---------------------------------------------------------------------------------
 
 def test_grid_sdf_matches_a_sphere_and_grows_outside_the_box():
     n, ext, r = 33, 1.2, 0.7
-    ax = B.grid_axis(n, ext)
+    ax = V.grid_axis(n, ext)
     pts = torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1)
     grid = torch.linalg.vector_norm(pts, dim=-1) - r
-    f = B.grid_sdf(grid, ext)
+    f = SG.grid_sdf(grid, ext)
     p = (torch.rand(2000, 3, generator=torch.Generator().manual_seed(0), dtype=torch.float64) * 2 - 1) * ext
     exact = torch.linalg.vector_norm(p, dim=-1) - r
     h = 2 * ext / (n - 1)
@@ -121,7 +125,7 @@ def test_grid_sdf_matches_a_sphere_and_grows_outside_the_box():
     # axes are not swapped: an off-center ellipsoid along x
     grid2 = torch.linalg.vector_norm((pts - torch.tensor([0.5, 0.0, 0.0], dtype=pts.dtype))
                                      / torch.tensor([0.3, 0.6, 0.9], dtype=pts.dtype), dim=-1) - 1
-    f2 = B.grid_sdf(grid2, ext)
+    f2 = SG.grid_sdf(grid2, ext)
     q = torch.tensor([[0.5, 0.0, 0.0], [0.5, 0.0, 0.85], [0.5, 0.55, 0.0], [0.5, 0.0, -0.95]], dtype=torch.float64)
     assert (f2(q)[:3] < 0).all() and f2(q)[3] > 0
     # outside the box: value at the nearest box point plus the distance to it
@@ -132,21 +136,21 @@ def test_grid_sdf_matches_a_sphere_and_grows_outside_the_box():
 def test_grid_regularizers_vanish_on_a_distance_field_and_not_on_a_scaled_one():
     n, ext = 41, 1.2
     h = 2 * ext / (n - 1)
-    ax = B.grid_axis(n, ext)
+    ax = V.grid_axis(n, ext)
     rho = torch.linalg.vector_norm(torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1), dim=-1)
-    eik, lap = B.grid_regularizers(rho - 0.8, h, 3.0)
+    eik, lap = SG.grid_regularizers(rho - 0.8, h, 3.0)
     assert eik < 1e-3
     # the Laplacian of |x| is 2 / |x|: (h * 2 / 0.8)^2 near the surface
     assert lap == pytest.approx((h * 2 / 0.8) ** 2, rel=0.1)
-    eik2, _ = B.grid_regularizers(2 * (rho - 0.8), h, 3.0)
+    eik2, _ = SG.grid_regularizers(2 * (rho - 0.8), h, 3.0)
     assert eik2 == pytest.approx(1.0, rel=0.05)
 
 
 def test_signed_distance_grid_of_a_carved_ball():
     n, ext, r = 49, 1.2, 0.6
-    ax = B.grid_axis(n, ext)
+    ax = V.grid_axis(n, ext)
     rho = torch.linalg.vector_norm(torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1), dim=-1)
-    sdf = B.signed_distance_grid(rho < r, ext)
+    sdf = SG.signed_distance_grid(rho < r, ext)
     h = 2 * ext / (n - 1)
     assert (sdf - (rho - r)).abs().max() < 1.5 * h
 
@@ -155,26 +159,26 @@ def test_mesh_from_grid_is_outward_and_has_the_right_volume():
     import trimesh
 
     n, ext, r = 49, 1.2, 0.7
-    ax = B.grid_axis(n, ext)
+    ax = V.grid_axis(n, ext)
     rho = torch.linalg.vector_norm(torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1), dim=-1)
-    m = B._mesh_from_grid((rho - r).numpy(), ext, "test")
+    m = SG.mesh_from_grid((rho - r).numpy(), ext, "test")
     tm = trimesh.Trimesh(m.verts.numpy(), m.faces.numpy(), process=False)
     assert tm.is_watertight
     assert tm.volume == pytest.approx(4 / 3 * math.pi * r ** 3, rel=0.02)  # positive: faces point outwards
-    with pytest.raises(ValueError, match="empty"):
-        B._mesh_from_grid((rho + 5).numpy(), ext, "test")
+    with pytest.raises(InputError, match="empty"):
+        SG.mesh_from_grid((rho + 5).numpy(), ext, "test")
 
 
 def test_mesh_from_grid_drops_specks_only_when_asked():
     n, ext = 49, 1.2
-    ax = B.grid_axis(n, ext)
+    ax = V.grid_axis(n, ext)
     pts = torch.stack(torch.meshgrid(ax, ax, ax, indexing="ij"), -1)
     big = torch.linalg.vector_norm(pts, dim=-1) - 0.7
     speck = torch.linalg.vector_norm(pts - torch.tensor([1.0, 1.0, 1.0], dtype=pts.dtype), dim=-1) - 0.08
     values = torch.minimum(big, speck).numpy()
-    both = B._mesh_from_grid(values, ext, "test")
-    one = B._mesh_from_grid(values, ext, "test", min_share=0.05)  # the speck has about 1.3% of the faces
-    alone = B._mesh_from_grid(big.numpy(), ext, "test")
+    both = SG.mesh_from_grid(values, ext, "test")
+    one = SG.mesh_from_grid(values, ext, "test", min_share=0.05)  # the speck has about 1.3% of the faces
+    alone = SG.mesh_from_grid(big.numpy(), ext, "test")
     assert len(both.faces) > len(one.faces) == len(alone.faces)
     assert torch.allclose(one.verts, alone.verts) and one.faces.max() == len(one.verts) - 1
 
@@ -184,17 +188,17 @@ def test_uniform_laplacian_and_edges():
 
     ico = trimesh.creation.icosphere(subdivisions=2)
     faces = torch.as_tensor(np.asarray(ico.faces))
-    edges = B.mesh_edges(faces)
+    edges = MD.mesh_edges(faces)
     assert edges.shape == (3 * len(faces) // 2, 2)  # closed mesh: every edge in two faces
     v = torch.as_tensor(np.asarray(ico.vertices))
-    lap = B.uniform_laplacian(v, edges)
+    lap = MD.uniform_laplacian(v, edges)
     # on a sphere the umbrella vector points inwards (towards the neighbours' mean), and a translation
     # does not change it
     assert ((lap * v).sum(-1) > 0).all()
-    assert torch.allclose(B.uniform_laplacian(v + 3.0, edges), lap, atol=1e-12)
+    assert torch.allclose(MD.uniform_laplacian(v + 3.0, edges), lap, atol=1e-12)
     # a tetrahedron: every vertex has the three others as neighbours
     tv = torch.tensor([[0.0, 0, 0], [1, 0, 0], [0, 2, 0], [0, 0, 3]], dtype=torch.float64)
-    tl = B.uniform_laplacian(tv, B.mesh_edges(torch.tensor([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])))
+    tl = MD.uniform_laplacian(tv, MD.mesh_edges(torch.tensor([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])))
     expected = torch.stack([tv[i] - (tv.sum(0) - tv[i]) / 3 for i in range(4)])
     assert torch.allclose(tl, expected)
 
@@ -205,13 +209,13 @@ def test_fit_views_box_filters_and_keeps_pixel_centers():
     cams = input_views(2, 96)
     masks = np.zeros((2, 96, 96), dtype=bool)
     masks[:, 30:60, 12:40] = True
-    target, small = B.fit_views(masks, cams, 40)  # 96 / 3 = 32 <= 40
+    target, small = V.fit_views(masks, cams, 40)  # 96 / 3 = 32 <= 40
     assert target.shape == (2, 32, 32) and small[0].width == 32 and small[0].height == 32
     assert float(target.sum()) == pytest.approx(masks.sum() / 9)
     p = torch.tensor([[0.3, 0.2, -0.1]], dtype=torch.float64)
     assert torch.allclose(project(p, small[0])[0] * 3, project(p, cams[0].to(torch.float32))[0].double(),
                           atol=1e-4)
-    same, _ = B.fit_views(masks, cams, 128)
+    same, _ = V.fit_views(masks, cams, 128)
     assert same.shape == (2, 96, 96)
 
 
@@ -221,8 +225,8 @@ def test_sdf_grid_recovers_a_box_from_four_views(box):
     # measured: 0.862 after one step (the visual hull, smoothed), 0.933 after 60
     mesh, task = box
     settings = {"resolution": 24, "mesh_resolution": 64}
-    start = _heldout_iou(B.sdf_grid(task, settings, 1, 0).mesh, mesh)
-    pred = B.sdf_grid(task, settings, 60, 0)
+    start = _heldout_iou(SG.sdf_grid(task, settings, 1, 0).mesh, mesh)
+    pred = SG.sdf_grid(task, settings, 60, 0)
     iou = _heldout_iou(pred.mesh, mesh)
     assert pred.evaluations == 60 and pred.info["view_renders"] == 240
     assert iou >= 0.90 and iou > start + 0.03, (start, iou)
@@ -232,14 +236,14 @@ def test_mesh_deform_recovers_a_box_from_four_views(box):
     # measured: 0.769 after one step (the sphere in the visual hull's box), 0.920 after 60
     mesh, task = box
     settings = {"subdivisions": 3}
-    start = _heldout_iou(B.mesh_deform(task, settings, 1, 0).mesh, mesh)
-    pred = B.mesh_deform(task, settings, 60, 0)
+    start = _heldout_iou(MD.mesh_deform(task, settings, 1, 0).mesh, mesh)
+    pred = MD.mesh_deform(task, settings, 60, 0)
     iou = _heldout_iou(pred.mesh, mesh)
     assert pred.evaluations == 60 and pred.info["view_renders"] == 240
     assert iou >= 0.89 and iou > start + 0.1, (start, iou)
 
 
-# -- the universal representations (ipm/bench/universal.py) ------------------------------------------
+# -- the universal representations (ipm/bench/methods/bsp.py, perturb.py) ------------------------------
 
 def test_bsp_and_perturb_bench_methods_convert_the_visual_hull(box):
     """Both convert the visual hull of the views (in its normalized frame) and report the size of what
@@ -261,11 +265,11 @@ def test_bsp_and_perturb_bench_methods_convert_the_visual_hull(box):
 
 
 @pytest.mark.parametrize("name, settings, match", [
-    ("bsp", {"planes": 0}, r"bsp: setting planes: expected a value in \[1, 4096\], got 0"),
-    ("bsp", {"plane": 8}, "bsp: unknown setting.*plane"),
-    ("perturb", {"tolerance": 0.0}, r"perturb: setting tolerance: expected a value in"),
-    ("perturb", {"max_functions": 2.5}, "perturb: setting max_functions: expected int, got 2.5"),
+    ("bsp", {"planes": 0}, r"bsp: setting planes: expected an integer in \[1, 4096\], got 0"),
+    ("bsp", {"plane": 8}, "bsp: unknown setting 'plane'"),
+    ("perturb", {"tolerance": 0.0}, r"perturb: setting tolerance: expected a number in"),
+    ("perturb", {"max_functions": 2.5}, r"perturb: setting max_functions: expected an integer in \[1, 100000\], got 2.5"),
 ])
 def test_universal_methods_reject_bad_settings(box, name, settings, match):
-    with pytest.raises(ValueError, match=match):
+    with pytest.raises(InputError, match=match):
         METHODS[name](box[1], settings, 1, 0)

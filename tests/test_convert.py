@@ -103,6 +103,7 @@ BAD = [
     (["sphere.ply", "--to", "nurbs"], "--to: expected one of bsp, perturb, sdftree"),
     (["sphere.ply", "--to", "bsp", "--max-functions", "5"], "--max-functions applies to --to perturb"),
     (["missing.ply", "--to", "bsp"], "mesh file not found"),
+    (["sphere.ply", "--to", "perturb", "--resolution", "100000"], "resolution: expected at most 808 (a float32 grid"),
 ]
 
 
@@ -113,6 +114,15 @@ def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path, meshes, ca
     assert code == 2 and stdout == ""
     assert err.count("\n") == 1 and err.startswith("ipm: error: ") and message in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+def test_a_huge_resolution_is_refused_before_any_work(tmp_path, meshes, capsys):
+    import time
+
+    t0 = time.perf_counter()
+    code, _, err = run(["convert", meshes / "sphere.ply", "--to", "perturb", "--resolution", "100000", "--mesh",
+                        tmp_path / "o.ply", "-o", tmp_path / "o.json"], capsys)
+    assert code == 2 and "fit in 2 GiB" in err and time.perf_counter() - t0 < 5.0, err
 
 
 def test_wrong_output_suffix(tmp_path, meshes, capsys):

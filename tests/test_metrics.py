@@ -7,7 +7,8 @@ import pytest
 import trimesh
 from conftest import real_path
 
-from ipm.metrics import fscore, iou_3d, mask_iou, normalize_vertices, point_to_surface, shape_scores
+from ipm.errors import InputError
+from ipm.metrics import fscore, iou_3d, mask_iou, normalize_vertices, point_to_surface, sample_surface, shape_scores
 
 
 def sphere(r=1.0, center=(0, 0, 0)):
@@ -23,8 +24,30 @@ def test_mask_iou():
     b[2:7] = True
     assert mask_iou(a, b) == pytest.approx(3 / 7)
     assert mask_iou(a, a) == 1.0
-    with pytest.raises(ValueError, match="equal shapes"):
+    with pytest.raises(InputError, match="equal shapes"):
         mask_iou(a, np.zeros((5, 5)))
+    # the one mask IoU takes soft masks (thresholded at 0.5), tensors and grids of any shape
+    import torch
+
+    assert mask_iou(a * 0.9, torch.from_numpy(b)) == pytest.approx(3 / 7)
+    assert mask_iou(a * 0.4, b) == 0.0
+    assert mask_iou(np.stack([a, a]), np.stack([b, b])) == pytest.approx(3 / 7)
+
+
+def test_sample_surface_lies_on_its_faces_and_follows_area():
+    m = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
+    V, F = np.asarray(m.vertices), np.asarray(m.faces)
+    pts, fi = sample_surface(V, F, 20_000, np.random.default_rng(0), return_faces=True)
+    again = sample_surface(V, F, 20_000, np.random.default_rng(0))
+    assert np.array_equal(pts, again)
+    # every point lies in the plane of its face
+    n = np.cross(V[F[fi, 1]] - V[F[fi, 0]], V[F[fi, 2]] - V[F[fi, 0]])
+    assert np.abs(np.einsum("ij,ij->i", pts - V[F[fi, 0]], n)).max() < 1e-9
+    # the two 1 x 1 end caps hold 2 / 18 of the area
+    caps = np.abs(np.abs(pts[:, 0]) - 2.0) < 1e-12
+    assert caps.mean() == pytest.approx(2 / 18, abs=0.01)
+    with pytest.raises(InputError, match="positive area"):
+        sample_surface(np.zeros((3, 3)), np.array([[0, 1, 2]]), 10, np.random.default_rng(0))
 
 
 @pytest.mark.parametrize("rel", ["vessels/ocrtoc_mug.ply", "buildings/denhaag_B06DD5CD_lod2.obj"])

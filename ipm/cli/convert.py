@@ -79,7 +79,8 @@ def register(app: typer.Typer) -> None:
         steps: Annotated[int | None, typer.Option(help="bsp, sdftree: Adam steps per stage [300]")] = None,
         mesh_out: Annotated[Path | None, typer.Option("--mesh", help="also write the converted shape as a mesh "
                                                       "(.obj, .ply, .stl or .glb)")] = None,
-        resolution: Annotated[int, typer.Option(help="marching-cubes resolution of --mesh (perturb)")] = 128,
+        resolution: Annotated[int, typer.Option(help="marching-cubes resolution of --mesh (perturb); its "
+                                                     "float32 grid must fit in 2 GiB (at most 808)")] = 128,
         seed: SeedOpt = 0,
         json_out: JsonOpt = False,
     ) -> None:
@@ -94,12 +95,15 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--up: expected y or z, got {up!r}")
         if not mesh.is_file():
             raise UsageError(f"mesh file not found: {mesh}")
+        from ipm.convert import check_mesh_resolution
+
+        check_mesh_resolution(resolution)  # up front: a grid too large for memory fails before any work
 
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ipm.convert import get_converter
-        from ipm.io.atomic import write_text
+        from ipm.files import write_text
         from ipm.io.meshes import load_mesh
 
         target = load_mesh(mesh, up=up, normalize=True)

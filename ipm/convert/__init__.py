@@ -12,6 +12,8 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 
+from ipm.errors import InputError
+
 # name -> (module, function): imported on first use, so `ipm --help` stays fast
 CONVERTERS: dict[str, tuple[str, str]] = {
     "bsp": ("ipm.convert.bsp", "fit_bsp"),
@@ -21,9 +23,9 @@ CONVERTERS: dict[str, tuple[str, str]] = {
 
 
 def get_converter(name: str) -> Callable:
-    """The converter registered as ``name``; ``ValueError`` lists the known ones."""
+    """The converter registered as ``name``; ``InputError`` lists the known ones."""
     if name not in CONVERTERS:
-        raise ValueError(f"unknown conversion target {name!r}; expected one of {', '.join(CONVERTERS)}")
+        raise InputError(f"unknown conversion target {name!r}; expected one of {', '.join(CONVERTERS)}")
     module, fn = CONVERTERS[name]
     return getattr(importlib.import_module(module), fn)
 
@@ -34,4 +36,12 @@ def convert(mesh, to: str, **options):
     return get_converter(to)(mesh, **options)
 
 
-__all__ = ["CONVERTERS", "convert", "get_converter"]
+def check_mesh_resolution(resolution) -> int:
+    """The meshing resolution of a converted shape, refused (:class:`InputError`, with the limit) when its
+    grid would not fit in memory: see :func:`ipm.convert.common.check_mesh_resolution`."""
+    from ipm.convert.common import check_mesh_resolution as check
+
+    return check(resolution)
+
+
+__all__ = ["CONVERTERS", "check_mesh_resolution", "convert", "get_converter"]

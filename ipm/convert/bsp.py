@@ -41,7 +41,6 @@ import numpy as np
 import torch
 
 from ipm.convert.common import (
-    Adam,
     Conversion,
     Progress,
     Target,
@@ -60,17 +59,13 @@ from ipm.generators.bsp import (
     polytope_mesh,
     relaxed_field,
 )
+from ipm.optim.adam import geometric, minimize
 
 log = logging.getLogger(__name__)
 
 
 def _bce(f: torch.Tensor, occ: torch.Tensor, s: float) -> torch.Tensor:
     return torch.nn.functional.binary_cross_entropy_with_logits(-f / s, occ)
-
-
-def _schedule(a: float, b: float, t: float) -> float:
-    """Geometric interpolation from ``a`` (t = 0) to ``b`` (t = 1)."""
-    return float(a * (b / a) ** min(max(t, 0.0), 1.0))
 
 
 def _full_mask(sel: np.ndarray) -> torch.Tensor:
@@ -193,21 +188,22 @@ def _stage1(P: torch.Tensor, T: torch.Tensor, W: torch.Tensor, X: torch.Tensor, 
             g: BspGenerator, steps: int, batch: int, lr: float, binarize: float, gen: torch.Generator,
             tick) -> None:
     """Adam on the planes, ``T`` and ``W`` (in place) under the relaxed field."""
-    opt = Adam([P, T, W], lr=lr)
-    for k in range(steps):
+
+    def loss_fn(k: int) -> torch.Tensor:
         idx = torch.randint(len(X), (batch,), generator=gen)
         t = k / max(steps - 1, 1)
-        s = _schedule(0.05, 0.005, t)
-        f = relaxed_field(P, T, W, X[idx], g.extent, g.relax, _schedule(g.temperature, 0.1 * g.temperature, t))
+        s = geometric(0.05, 0.005, k, steps)
+        f = relaxed_field(P, T, W, X[idx], g.extent, g.relax, geometric(g.temperature, 0.1 * g.temperature, k, steps))
         ramp = binarize * max(0.0, 2.0 * t - 0.5)        # off for the first quarter, then growing
-        loss = _bce(f, occ[idx], s) + ramp * ((T * (1 - T)).mean() + (W * (1 - W)).mean())
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
+        return _bce(f, occ[idx], s) + ramp * ((T * (1 - T)).mean() + (W * (1 - W)).mean())
+
+    def project(k: int, loss: torch.Tensor) -> None:
         with torch.no_grad():
             T.clamp_(0.0, 1.0)
             W.clamp_(0.0, 1.0)
         tick()
+
+    minimize([P, T, W], loss_fn, steps, lr, after_step=project)
 
 
 def _stage2(planes: torch.Tensor, sel: np.ndarray, X: torch.Tensor, occ: torch.Tensor, extent: float,
@@ -220,21 +216,18 @@ def _stage2(planes: torch.Tensor, sel: np.ndarray, X: torch.Tensor, occ: torch.T
         return planes
     mask = _full_mask(sel[:, keep])
     P = planes.clone().requires_grad_(True)
-    opt = Adam([P], lr=lr)
-    for k in range(steps):
+
+    def loss_fn(k: int) -> torch.Tensor:
         idx = torch.randint(len(X), (batch,), generator=gen)
-        t = k / max(steps - 1, 1)
-        s = _schedule(s0, s1, t)
-        opt.lr = _schedule(lr, lr / 20, t)
+        s = geometric(s0, s1, k, steps)
         G = convex_fields(P, mask, X[idx], extent)                  # (batch, c)
         loss = _bce(G.amin(-1), occ[idx], s)
         if overlap > 0 and G.shape[1] > 1:
             loss = loss + overlap * torch.relu(torch.sigmoid(-G / s).sum(-1) - 1.0).mean()
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        if tick is not None:
-            tick()
+        return loss
+
+    minimize([P], loss_fn, steps, lr, schedule=lambda k: geometric(lr, lr / 20, k, steps),
+             after_step=None if tick is None else lambda k, loss: tick())
     return P.detach()
 
 

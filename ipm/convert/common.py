@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.generators.base import Generator
 from ipm.types import TriMesh
 
@@ -67,29 +68,29 @@ def as_arrays(mesh) -> tuple[np.ndarray, np.ndarray]:
     elif hasattr(mesh, "vertices") and hasattr(mesh, "faces"):
         V, F = np.asarray(mesh.vertices, dtype=np.float64), np.asarray(mesh.faces)
     else:
-        raise ValueError(f"expected a TriMesh, a trimesh.Trimesh or (verts, faces), got {type(mesh).__name__}")
+        raise InputError(f"expected a TriMesh, a trimesh.Trimesh or (verts, faces), got {type(mesh).__name__}")
     V = V.reshape(-1, 3) if V.size else np.zeros((0, 3))
     F = F.reshape(-1, 3).astype(np.int64) if F.size else np.zeros((0, 3), dtype=np.int64)
     return V, F
 
 
 def prepare(mesh) -> Target:
-    """Check, weld, clean and normalize a target mesh; ``ValueError`` ("expected ..., got ...") if it has
+    """Check, weld, clean and normalize a target mesh; ``InputError`` ("expected ..., got ...") if it has
     no faces, non-finite or out-of-range indices, or no area."""
     from ipm.metrics import unit_sphere_frame
 
     V, F = as_arrays(mesh)
     if len(F) == 0:
-        raise ValueError(f"expected a mesh with faces, got one with {len(V)} vertices and no faces")
+        raise InputError(f"expected a mesh with faces, got one with {len(V)} vertices and no faces")
     if F.min() < 0 or F.max() >= len(V):
-        raise ValueError(f"expected face indices in [0, {len(V) - 1}], got {F.min()}..{F.max()}")
+        raise InputError(f"expected face indices in [0, {len(V) - 1}], got {F.min()}..{F.max()}")
     if not np.isfinite(V).all():
-        raise ValueError("expected finite vertex coordinates, got NaN or inf")
+        raise InputError("expected finite vertex coordinates, got NaN or inf")
     used = np.unique(F)
     try:
         center, scale = unit_sphere_frame(V[used])
     except ValueError:
-        raise ValueError("expected a mesh with a nonzero extent, got all vertices at one point") from None
+        raise InputError("expected a mesh with a nonzero extent, got all vertices at one point") from None
     Vn = (V[used] - center) * scale
     Vall = np.zeros_like(V)
     Vall[used] = Vn
@@ -102,7 +103,7 @@ def prepare(mesh) -> Target:
     area2 = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
     keep = (area2 > 1e-14) & (Fw[:, 0] != Fw[:, 1]) & (Fw[:, 1] != Fw[:, 2]) & (Fw[:, 0] != Fw[:, 2])
     if not keep.any():
-        raise ValueError("expected a mesh with positive surface area, got only degenerate triangles")
+        raise InputError("expected a mesh with positive surface area, got only degenerate triangles")
     Fw = Fw[keep]
     used2, Fc = np.unique(Fw, return_inverse=True)
     Vc = Vall[first][used2]
@@ -129,17 +130,14 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
 
 
 def surface_with_normals(target: Target, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` area-weighted surface samples ``(n, 3)`` and their unit face normals ``(n, 3)``."""
-    t = target.verts[target.faces]
+    """``n`` area-weighted surface samples ``(n, 3)`` (:func:`ipm.metrics.sample_surface`) and their unit
+    face normals ``(n, 3)``."""
+    from ipm.metrics import sample_surface
+
+    pts, fi = sample_surface(target.verts, target.faces, n, rng, return_faces=True)
+    t = target.verts[target.faces[fi]]
     fn = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
-    area = np.linalg.norm(fn, axis=1)
-    fi = rng.choice(len(area), size=n, p=area / area.sum())
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    tt = t[fi]
-    pts = tt[:, 0] + u[:, None] * (tt[:, 1] - tt[:, 0]) + v[:, None] * (tt[:, 2] - tt[:, 0])
-    return pts, fn[fi] / area[fi, None]
+    return pts, fn / np.linalg.norm(fn, axis=1)[:, None]
 
 
 def occupancy_samples(target: Target, n_uniform: int, n_near: int, rng: np.random.Generator,
@@ -174,7 +172,7 @@ def farthest_points(points: np.ndarray, k: int, rng: np.random.Generator) -> np.
 
 def check_positive_int(name: str, value, lo: int = 1) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
-        raise ValueError(f"{name}: expected an integer >= {lo}, got {value!r}")
+        raise InputError(f"{name}: expected an integer >= {lo}, got {value!r}")
     return int(value)
 
 
@@ -182,35 +180,29 @@ def check_positive(name: str, value) -> float:
     try:
         v = float(value)
     except (TypeError, ValueError):
-        raise ValueError(f"{name}: expected a positive number, got {value!r}") from None
+        raise InputError(f"{name}: expected a positive number, got {value!r}") from None
     if not (np.isfinite(v) and v > 0):
-        raise ValueError(f"{name}: expected a positive number, got {value!r}")
+        raise InputError(f"{name}: expected a positive number, got {value!r}")
     return v
 
 
-class Adam:
-    """Adam (Kingma and Ba 2015) on a list of leaf tensors, in a few lines: ``torch.optim`` imports
-    torch._dynamo on first use, which costs seconds at the command line."""
+# A converted shape is meshed on a dense float32 grid of about resolution³ samples (4 bytes each, plus a
+# margin of a few samples a side): refuse up front, before any conversion work, grids above this size.
+MAX_GRID_BYTES = 2 * 1024**3
 
-    def __init__(self, params: list[torch.Tensor], lr: float, betas: tuple[float, float] = (0.9, 0.999),
-                 eps: float = 1e-8):
-        self.params, self.lr, self.betas, self.eps = list(params), lr, betas, eps
-        self.m = [torch.zeros_like(p) for p in self.params]
-        self.v = [torch.zeros_like(p) for p in self.params]
-        self.t = 0
 
-    def zero_grad(self) -> None:
-        for p in self.params:
-            p.grad = None
-
-    @torch.no_grad()
-    def step(self) -> None:
-        self.t += 1
-        b1, b2 = self.betas
-        c1, c2 = 1 - b1 ** self.t, 1 - b2 ** self.t
-        for p, m, v in zip(self.params, self.m, self.v):
-            if p.grad is None:
-                continue
-            m.mul_(b1).add_(p.grad, alpha=1 - b1)
-            v.mul_(b2).addcmul_(p.grad, p.grad, value=1 - b2)
-            p.sub_(self.lr * (m / c1) / ((v / c2).sqrt() + self.eps))
+def check_mesh_resolution(resolution) -> int:
+    """``resolution`` if a ``resolution``³ float32 meshing grid fits in :data:`MAX_GRID_BYTES` (2 GiB);
+    :class:`InputError` with the limit and the largest resolution that fits otherwise."""
+    if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)) or resolution < 8:
+        raise InputError(f"resolution: expected an integer >= 8, got {resolution!r}")
+    need = (int(resolution) + 4) ** 3 * 4
+    if need > MAX_GRID_BYTES:
+        top = int(round((MAX_GRID_BYTES / 4) ** (1 / 3))) - 4
+        while (top + 5) ** 3 * 4 <= MAX_GRID_BYTES:
+            top += 1
+        while (top + 4) ** 3 * 4 > MAX_GRID_BYTES:
+            top -= 1
+        raise InputError(f"resolution: expected at most {top} (a float32 grid of resolution³ samples must fit in "
+                         f"{MAX_GRID_BYTES / 1024**3:g} GiB), got {resolution} ({need / 1024**3:.4g} GiB)")
+    return int(resolution)

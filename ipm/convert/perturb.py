@@ -54,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ipm.convert.common import Adam, Conversion, Progress, Target, check_positive, check_positive_int, prepare
+from ipm.convert.common import Conversion, Progress, Target, check_positive, check_positive_int, prepare
 from ipm.generators.perturb import (
     BASE,
     N_BASE,
@@ -66,6 +66,7 @@ from ipm.generators.perturb import (
     quadric_matrix,
     support_radii,
 )
+from ipm.optim.adam import minimize
 
 log = logging.getLogger(__name__)
 
@@ -161,15 +162,10 @@ def _hull_samples(V: np.ndarray, n: int, rng: np.random.Generator) -> tuple[np.n
         h = ConvexHull(V)
     except QhullError:
         return None
-    tri = V[h.simplices]
-    fn = h.equations[:, :3]
-    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    fi = rng.choice(len(area), size=n, p=area / area.sum())
-    u, v = rng.random(n), rng.random(n)
-    flip = u + v > 1
-    u[flip], v[flip] = 1 - u[flip], 1 - v[flip]
-    t = tri[fi]
-    return t[:, 0] + u[:, None] * (t[:, 1] - t[:, 0]) + v[:, None] * (t[:, 2] - t[:, 0]), fn[fi]
+    from ipm.metrics import sample_surface
+
+    pts, fi = sample_surface(V, h.simplices, n, rng, return_faces=True)
+    return pts, h.equations[fi, :3]
 
 
 # ----------------------------------------------------------------------------------------------
@@ -483,17 +479,17 @@ def _refine(st: _State, tree, P0: np.ndarray, steps: int, lr: float) -> np.ndarr
         return (res * res).sum() + st.wg * (G * G).sum()
 
     z = torch.zeros_like(P0t, requires_grad=True)
-    opt = Adam([z], lr=lr)
-    best, best_loss = P0t.clone(), math.inf
-    for _ in range(steps + 1):
+    best = {"P": P0t.clone(), "loss": math.inf}
+
+    def loss_fn(step: int) -> torch.Tensor:
         P = P0t + scale_t * z
         loss = objective(P)
-        if float(loss.detach()) < best_loss:
-            best, best_loss = P.detach().clone(), float(loss.detach())
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-    out = best.numpy()
+        if float(loss.detach()) < best["loss"]:
+            best.update(P=P.detach().clone(), loss=float(loss.detach()))
+        return loss
+
+    minimize([z], loss_fn, steps + 1, lr)
+    out = best["P"].numpy()
     # a function grown past the samples it was refined on would act where it was not checked
     grown = _radii(out) > 1.5 * rad
     out[grown] = P0[grown]

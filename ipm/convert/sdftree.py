@@ -20,6 +20,7 @@ import time
 import numpy as np
 
 from ipm.convert.common import Conversion, Progress
+from ipm.errors import InputError
 from ipm.generators.bsp import convex_cells
 
 
@@ -69,7 +70,7 @@ def convert_sdftree(mesh, *, progress: Progress | None = None, seed: int = 0, **
     planes, T, _ = bsp.generator.planes_and_selection(bsp.values)
     doc = bsp_tree(planes, T >= 0.5, bsp.generator.extent)
     if doc is None:
-        raise ValueError("sdftree: the BSP fit is empty (no convex); nothing to write")
+        raise InputError("sdftree: the BSP fit is empty (no convex); nothing to write")
     tree = tree_from_json(doc)
     gen = SdfTreeGenerator(tree, "sdftree", "ipm convert --to sdftree")
     values = gen.spec.defaults()

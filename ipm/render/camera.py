@@ -23,6 +23,7 @@ from pathlib import Path
 
 import torch
 
+from ipm.errors import InputError
 from ipm.types import Camera
 
 # The evaluation protocol (DESIGN.md).
@@ -49,7 +50,7 @@ def look_at_camera(eye, target, up=(0.0, 1.0, 0.0), fov_deg=PROTOCOL_FOV_DEG, wi
 
     eye, target, up: (3,) tensors or sequences (tensors keep their dtype, device and grad);
     fov_deg: vertical field of view in degrees; width, height: image size (height defaults to width).
-    Raises ``ValueError`` when eye == target or up is parallel to the viewing direction.
+    Raises ``InputError`` when eye == target or up is parallel to the viewing direction.
     """
     eye_t = _as_tensor(eye)
     target_t = _as_tensor(target, eye_t)
@@ -61,18 +62,18 @@ def look_at_camera(eye, target, up=(0.0, 1.0, 0.0), fov_deg=PROTOCOL_FOV_DEG, wi
 
 
 def check_camera(cam: Camera) -> None:
-    """Raise ``ValueError`` if the look-at frame is degenerate (eye == target, up parallel to the view)."""
+    """Raise ``InputError`` if the look-at frame is degenerate (eye == target, up parallel to the view)."""
     fwd = (cam.target - cam.eye).detach().double()
     n = float(torch.linalg.vector_norm(fwd))
     if not n > 1e-12:
-        raise ValueError(f"camera: expected eye != target, got eye = target = {cam.eye.tolist()}")
+        raise InputError(f"camera: expected eye != target, got eye = target = {cam.eye.tolist()}")
     up = cam.up.detach().double()
     nu = float(torch.linalg.vector_norm(up))
     if not nu > 1e-12:
-        raise ValueError("camera: expected a nonzero up vector, got (0, 0, 0)")
+        raise InputError("camera: expected a nonzero up vector, got (0, 0, 0)")
     s = float(torch.linalg.vector_norm(torch.linalg.cross(fwd / n, up / nu)))
     if s < 1e-6:
-        raise ValueError(f"camera: expected an up vector not parallel to the viewing direction, got up "
+        raise InputError(f"camera: expected an up vector not parallel to the viewing direction, got up "
                          f"{up.tolist()} and direction {(fwd / n).tolist()}")
 
 
@@ -92,14 +93,14 @@ def orbit_camera(azimuth_deg, elevation_deg, distance=PROTOCOL_DISTANCE, target=
     """A camera on an orbit around ``target``, Y up, looking at ``target``.
 
     azimuth_deg, elevation_deg, distance, fov_deg: floats or 0-dim tensors (differentiable);
-    target: (3,). Raises ``ValueError`` for |elevation| >= 90° or distance <= 0.
+    target: (3,). Raises ``InputError`` for |elevation| >= 90° or distance <= 0.
     """
     el = float(torch.as_tensor(elevation_deg).detach())
     if not abs(el) < 90.0:
-        raise ValueError(f"orbit camera elevation: expected a value in (-90, 90) degrees, got {el}")
+        raise InputError(f"orbit camera elevation: expected a value in (-90, 90) degrees, got {el}")
     dist = float(torch.as_tensor(distance).detach())
     if not dist > 0:
-        raise ValueError(f"orbit camera distance: expected a positive value, got {dist}")
+        raise InputError(f"orbit camera distance: expected a positive value, got {dist}")
     eye = orbit_eye(azimuth_deg, elevation_deg, distance, target)
     tgt = _as_tensor(target, eye)
     up = torch.tensor([0.0, 1.0, 0.0], dtype=eye.dtype, device=eye.device)
@@ -132,7 +133,7 @@ def view_matrix(cam: Camera) -> torch.Tensor:
 def projection(cam: Camera, near: float = 0.01, far: float = 100.0) -> torch.Tensor:
     """OpenGL perspective projection matrix (4, 4): camera space to clip space (NDC in [-1, 1]^3)."""
     if not 0 < near < far:
-        raise ValueError(f"projection: expected 0 < near < far, got near={near}, far={far}")
+        raise InputError(f"projection: expected 0 < near < far, got near={near}, far={far}")
     f = 1.0 / torch.tan(torch.deg2rad(cam.fov_deg.to(cam.eye.dtype)) / 2)
     aspect = cam.width / cam.height
     zero = torch.zeros((), dtype=f.dtype, device=f.device)
@@ -165,7 +166,7 @@ def project(points: torch.Tensor, cam: Camera, eps: float = 1e-9) -> tuple[torch
     at or behind the camera get meaningless pixel coordinates; check ``depth > 0``.
     """
     if points.shape[-1:] != (3,):
-        raise ValueError(f"project: expected points (..., 3), got {tuple(points.shape)}")
+        raise InputError(f"project: expected points (..., 3), got {tuple(points.shape)}")
     pc = to_camera_space(points, cam)
     depth = -pc[..., 2]
     fpx = focal_pixels(cam).to(points.dtype)
@@ -199,7 +200,7 @@ def input_view_azimuths(k: int) -> list[float]:
     orthogonal views: opposite views leave the depth along their common axis nearly free), 30° + i·360°/K
     beyond."""
     if not isinstance(k, int) or k < 1:
-        raise ValueError(f"input views: expected a positive number of views, got {k}")
+        raise InputError(f"input views: expected a positive number of views, got {k}")
     step = 90.0 if k <= 4 else 360.0 / k
     return [30.0 + i * step for i in range(k)]
 
@@ -223,7 +224,7 @@ def heldout_views(size: int = 256, distance: float = PROTOCOL_DISTANCE) -> list[
 
 def _check_size(size: int) -> None:
     if not isinstance(size, int) or size < 1:
-        raise ValueError(f"image size: expected a positive integer, got {size!r}")
+        raise InputError(f"image size: expected a positive integer, got {size!r}")
 
 
 # -- cameras.json ------------------------------------------------------------------------------------
@@ -236,16 +237,16 @@ def cameras_to_json(cameras: Sequence[Camera]) -> str:
 def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera]:
     """Cameras from parsed cameras.json data (a list of entries, or ``{"cameras": [...]}``).
 
-    Raises ``ValueError`` naming the entry and the missing or malformed field.
+    Raises ``InputError`` naming the entry and the missing or malformed field.
     """
     if isinstance(data, dict) and "cameras" in data:
         data = data["cameras"]
     if not isinstance(data, list):
-        raise ValueError(f"{source}: expected a JSON list of camera entries, got {type(data).__name__}")
+        raise InputError(f"{source}: expected a JSON list of camera entries, got {type(data).__name__}")
     cams = []
     for i, entry in enumerate(data):
         if not isinstance(entry, dict):
-            raise ValueError(f"{source}: entry {i}: expected an object with eye, target, up, fov_deg, "
+            raise InputError(f"{source}: entry {i}: expected an object with eye, target, up, fov_deg, "
                              f"width, height, got {type(entry).__name__}")
         try:
             for key in ("eye", "target", "up"):
@@ -253,16 +254,16 @@ def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera
                 if not (isinstance(v, list) and len(v) == 3 and all(_is_number(x) for x in v)):
                     if key not in entry:
                         break  # reported by Camera.from_json with the list of fields
-                    raise ValueError(f"{key}: expected a list of 3 numbers, got {v!r}")
+                    raise InputError(f"{key}: expected a list of 3 numbers, got {v!r}")
             for key in ("width", "height"):
                 if key in entry and not (isinstance(entry[key], int) and not isinstance(entry[key], bool)):
-                    raise ValueError(f"{key}: expected an integer, got {entry[key]!r}")
+                    raise InputError(f"{key}: expected an integer, got {entry[key]!r}")
             if "fov_deg" in entry and not _is_number(entry["fov_deg"]):
-                raise ValueError(f"fov_deg: expected a number, got {entry['fov_deg']!r}")
+                raise InputError(f"fov_deg: expected a number, got {entry['fov_deg']!r}")
             cam = Camera.from_json(entry)
             check_camera(cam)
         except ValueError as e:
-            raise ValueError(f"{source}: entry {i}: {e}") from None
+            raise InputError(f"{source}: entry {i}: {e}") from None
         cams.append(cam)
     return cams
 
@@ -273,18 +274,18 @@ def _is_number(x) -> bool:
 
 def save_cameras(path: str | Path, cameras: Sequence[Camera]) -> Path:
     """Write cameras.json atomically."""
-    from ipm.io.atomic import write_text
+    from ipm.files import write_text
 
     return write_text(path, cameras_to_json(cameras))
 
 
 def load_cameras(path: str | Path) -> list[Camera]:
-    """Read and validate a cameras.json file (``ValueError`` with the file and entry on bad input)."""
+    """Read and validate a cameras.json file (``InputError`` with the file and entry on bad input)."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"cameras file: expected an existing file, got {path}")
+        raise InputError(f"cameras file: expected an existing file, got {path}")
     try:
         data = json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path}: expected JSON, got a parse error: {e}") from None
+        raise InputError(f"{path}: expected JSON, got a parse error: {e}") from None
     return cameras_from_json(data, str(path))

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.render.camera import orbit_camera, pixel_rays
 from ipm.render.raster import rasterize
 from ipm.types import Camera, TriMesh
@@ -89,11 +90,11 @@ def save_png(path: str | Path, image: np.ndarray) -> Path:
     """Write an (H, W, 3) or (H, W) uint8 array as PNG, atomically."""
     from PIL import Image
 
-    from ipm.io.atomic import atomic_path
+    from ipm.files import atomic_path
 
     arr = np.asarray(image)
     if arr.dtype != np.uint8 or arr.ndim not in (2, 3):
-        raise ValueError(f"image: expected a uint8 (H, W) or (H, W, 3) array, got {arr.dtype} {arr.shape}")
+        raise InputError(f"image: expected a uint8 (H, W) or (H, W, 3) array, got {arr.dtype} {arr.shape}")
     with atomic_path(path) as tmp:
         Image.fromarray(arr).save(tmp, format="PNG")
     return Path(path)

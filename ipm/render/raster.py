@@ -4,7 +4,7 @@ Coverage is decided at pixel centers: for every image row a triangle crosses, it
 (the x-extent of the triangle on the line through the row's pixel centers) is computed exactly, and the
 pixels whose centers fall in it are covered (edges count as inside; a pixel center exactly on an edge
 shared by two triangles is covered by both, which a silhouette does not mind). Spans are enumerated in
-pieces of K pixels (see :func:`ipm.render.soft.span_rows`), so the work follows the covered area, with
+pieces of K pixels (see :func:`ipm.render.scan.span_rows`), so the work follows the covered area, with
 no Python loop per triangle. Depth is interpolated perspective-correctly (1/z is affine in screen
 space) and a z-buffer (``scatter_reduce`` amax of 1/z) keeps the nearest face; ties go to the lower face
 index. Not differentiable (see :mod:`ipm.render.soft` for gradients).
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ipm.render.soft import check_mesh_tensors, span_rows, visible_triangles
+from ipm.render.scan import check_mesh_tensors, span_rows, visible_triangles
 from ipm.types import Camera, TriMesh
 
 log = logging.getLogger(__name__)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.render.camera import detach_camera, pixel_rays
 from ipm.types import Camera
 
@@ -38,10 +39,10 @@ def _box(lo, hi, dtype, device) -> tuple[torch.Tensor, torch.Tensor]:
     lo_t = torch.as_tensor(np.asarray(lo, dtype=np.float64), dtype=dtype, device=device)
     hi_t = torch.as_tensor(np.asarray(hi, dtype=np.float64), dtype=dtype, device=device)
     if lo_t.shape != (3,) or hi_t.shape != (3,):
-        raise ValueError(f"box: expected lo and hi of shape (3,), got {tuple(lo_t.shape)} and "
+        raise InputError(f"box: expected lo and hi of shape (3,), got {tuple(lo_t.shape)} and "
                          f"{tuple(hi_t.shape)}")
     if not bool((hi_t > lo_t).all()):
-        raise ValueError(f"box: expected lo < hi on every axis, got lo={lo_t.tolist()}, hi={hi_t.tolist()}")
+        raise InputError(f"box: expected lo < hi on every axis, got lo={lo_t.tolist()}, hi={hi_t.tolist()}")
     return lo_t, hi_t
 
 
@@ -136,7 +137,7 @@ def sdf_silhouette(f: SDF, camera: Camera, lo, hi, sigma: float | None = None, *
     if sigma is None:
         sigma = default_sigma(camera, lo, hi)
     if not sigma > 0:
-        raise ValueError(f"sigma: expected a positive blur (world units), got {sigma}")
+        raise InputError(f"sigma: expected a positive blur (world units), got {sigma}")
     dev = camera.eye.device
     cam = camera.to(dtype=dtype)
     lo_t, hi_t = _box(lo, hi, dtype, dev)

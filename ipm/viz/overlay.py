@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
+
+from ipm.errors import InputError
+from ipm.metrics import as_mask, mask_iou
 
 TARGET = (220, 40, 40)
 FIT = (40, 180, 60)
@@ -15,19 +17,10 @@ TITLE_HEIGHT = 18
 
 
 def _bool(mask) -> np.ndarray:
-    arr = np.asarray(mask.detach().cpu() if torch.is_tensor(mask) else mask)
+    arr = as_mask(mask)
     if arr.ndim != 2:
-        raise ValueError(f"mask: expected a (H, W) array, got shape {arr.shape}")
-    return arr > (0.5 if arr.dtype.kind == "f" else 0)
-
-
-def mask_iou(a, b) -> float:
-    """Intersection over union of two (H, W) masks (bool, or float thresholded at 0.5); 1.0 if both empty."""
-    a, b = _bool(a), _bool(b)
-    if a.shape != b.shape:
-        raise ValueError(f"masks: expected equal shapes, got {a.shape} and {b.shape}")
-    union = np.logical_or(a, b).sum()
-    return float(np.logical_and(a, b).sum() / union) if union else 1.0
+        raise InputError(f"mask: expected a (H, W) array, got shape {arr.shape}")
+    return arr
 
 
 def overlay(target, fit, title: str | None = None, *, show_iou: bool = True):
@@ -39,7 +32,7 @@ def overlay(target, fit, title: str | None = None, *, show_iou: bool = True):
 
     t, f = _bool(target), _bool(fit)
     if t.shape != f.shape:
-        raise ValueError(f"overlay: expected masks of one shape, got {t.shape} and {f.shape}")
+        raise InputError(f"overlay: expected masks of one shape, got {t.shape} and {f.shape}")
     rgb = np.empty(t.shape + (3,), dtype=np.uint8)
     rgb[:] = BACKGROUND
     rgb[t & ~f] = TARGET

@@ -5,6 +5,8 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
+from ipm.errors import InputError
+
 
 def plot_losses(curves: Mapping[str, Sequence[float]] | Sequence[float], path: str | Path, *,
                 title: str = "loss", log_y: bool = True, xlabel: str = "evaluation") -> Path:
@@ -19,7 +21,7 @@ def plot_losses(curves: Mapping[str, Sequence[float]] | Sequence[float], path: s
     if not isinstance(curves, Mapping):
         curves = {"loss": curves}
     if not curves or all(len(v) == 0 for v in curves.values()):
-        raise ValueError("plot_losses: expected at least one non-empty curve, got none")
+        raise InputError("plot_losses: expected at least one non-empty curve, got none")
     fig, ax = plt.subplots(figsize=(6, 4), dpi=100)
     try:
         for name, ys in curves.items():

@@ -8,6 +8,8 @@ from collections.abc import Sequence
 import numpy as np
 import torch
 
+from ipm.errors import InputError
+
 LABEL_HEIGHT = 14
 
 
@@ -26,7 +28,7 @@ def to_image(x):
         return Image.fromarray(arr.astype(np.uint8), "L").convert("RGB")
     if arr.ndim == 3 and arr.shape[2] in (3, 4) and arr.dtype == np.uint8:
         return Image.fromarray(arr).convert("RGB")
-    raise ValueError(f"image: expected a PIL image, a (H, W) mask or a (H, W, 3) uint8 array, got "
+    raise InputError(f"image: expected a PIL image, a (H, W) mask or a (H, W, 3) uint8 array, got "
                      f"{arr.dtype} {arr.shape}")
 
 
@@ -37,9 +39,9 @@ def contact_sheet(images: Sequence, cols: int | None = None, labels: Sequence[st
     from PIL import Image, ImageDraw
 
     if len(images) == 0:
-        raise ValueError("contact sheet: expected at least one image, got none")
+        raise InputError("contact sheet: expected at least one image, got none")
     if labels is not None and len(labels) != len(images):
-        raise ValueError(f"contact sheet: expected one label per image, got {len(labels)} labels for "
+        raise InputError(f"contact sheet: expected one label per image, got {len(labels)} labels for "
                          f"{len(images)} images")
     ims = [to_image(x) for x in images]
     cols = cols or math.ceil(math.sqrt(len(ims)))
