@@ -149,7 +149,7 @@ def test_bad_experiment_files(tmp_path):
     with pytest.raises(InputError, match="exactly one of mesh or generator"):
         load_experiment(bad)
     bad.write_text("[[targets]]\nname='t'\nmesh='m.ply'\n[[methods]]\nname='m'\nmethod='magic'\n")
-    with pytest.raises(ValueError, match="unknown method 'magic'"):
+    with pytest.raises(InputError, match="method m: unknown bench method 'magic'"):
         load_experiment(bad)
     with pytest.raises(ValueError, match="not found"):
         load_experiment(tmp_path / "none.toml")

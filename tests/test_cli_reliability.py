@@ -287,7 +287,7 @@ def test_os_refusals_name_the_output_not_the_temporary_file(tmp_path, monkeypatc
     import errno
 
     from ipm.errors import InputError
-    from ipm.io import atomic
+    from ipm import files as atomic
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device", str(a[0]))
