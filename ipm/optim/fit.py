@@ -54,9 +54,9 @@ class FitSettings:
 
     budget: int = 1500
     seed: int = 0
-    discrete: str = "memetic"        # memetic | nlopt | enumerate | none
+    discrete: str = "memetic"        # a search strategy: ipm.optim.strategies.STRATEGIES
     camera: str = "known"            # known | fit
-    loss: str = "iou"                # iou | mse (masks); chamfer for mesh targets is automatic
+    loss: str = "iou"                # a mask loss of ipm.losses.LOSSES; chamfer for mesh targets is automatic
     local: str = "adam"              # adam | mma | lbfgs
     lr: float | None = None          # Adam step in normalized space; None: the generator's (see fit_lr)
     sigma: float = 0.0               # soft rasterizer blur; 0 = the renderer's default for the image size
