@@ -156,9 +156,8 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     run_dir = Path(run_dir)
     x = best["x"].to(torch.float64)
     mesh = prob.mesh_world(x, best["discrete"]).detach()
-    params = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
-    write_json(run_dir / "params.json", params)
     meta = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
+    write_json(run_dir / "params.json", meta)
     export_mesh(mesh, run_dir / "mesh.glb", meta, sidecar=False)
     export_mesh(mesh, run_dir / "mesh.obj", meta, sidecar=False)
     files = {"params": "params.json", "mesh": ["mesh.glb", "mesh.obj"]}

@@ -96,7 +96,7 @@ class Problem:
         self.m = self.layout.m
         self.pose_mask = torch.ones(self.m, dtype=torch.float64)
         if not settings.pose:
-            self.pose_mask[self.n:self.n + 5] = 0
+            self.pose_mask[self.layout.pose] = 0
         # coarse to fine: detail parameters (per-section offsets, ...) stay at their start during the
         # search of a silhouette fit, which then explores fewer, better-determined dimensions; the
         # polish frees them. A mesh target determines them all: holding them there only lets the coarse
@@ -152,8 +152,9 @@ class Problem:
         return out
 
     def values(self, x: torch.Tensor, discrete: Mapping[str, int]) -> dict:
+        """The named parameter dict of ``x (m,)`` and ``discrete`` (the starting values where absent)."""
         theta = self.decode(x.detach().double())[0]
-        return self.gen.spec.from_vector(theta, {**self.d0, **discrete})
+        return E.from_vectors(self.gen.spec, theta, {**self.d0, **discrete})
 
     def repose(self, x: torch.Tensor, d_from: Mapping[str, int], d_to: Mapping[str, int]) -> torch.Tensor:
         """``x`` (m,) of a shape with discrete values ``d_from``, re-encoded for ``d_to`` so that what the two
