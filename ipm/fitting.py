@@ -8,7 +8,8 @@
 The run folder holds ``settings.json``, ``trajectory.jsonl`` (every evaluation; also the checkpoint),
 ``params.json``, ``mesh.glb``, ``mesh.obj``, ``result.json``, ``overlay_000.png`` ... and ``loss.png``.
 ``resume=True`` continues an interrupted run: the recorded evaluations are replayed, so with the same
-seed the run ends where an uninterrupted one would.
+seed the run ends where an uninterrupted one would (a replay that differs from its record raises
+:class:`~ipm.errors.InputError` naming the folder), and ``wall_time_s`` counts the time of every run.
 """
 
 from __future__ import annotations
@@ -21,14 +22,18 @@ from pathlib import Path
 
 import torch
 
+from ipm.errors import InputError
 from ipm.types import FitResult
 
 log = logging.getLogger(__name__)
 
 
 def _settings_from_json(d: dict):
+    """FitSettings from a run's settings.json (fields this version does not know are ignored)."""
     from ipm.optim.fit import FitSettings
 
+    if not isinstance(d, dict):
+        raise InputError(f"settings: expected an object, got {type(d).__name__}")
     known = {f.name for f in fields(FitSettings)}
     return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
 
@@ -36,10 +41,11 @@ def _settings_from_json(d: dict):
 def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
                 camera: str = "known", device=None, dtype=torch.float32):
     """A MaskTarget from a mask folder, or a MeshTarget from a mesh file (normalized as in DESIGN.md)."""
-    from ipm.optim.fit import MaskTarget, MeshTarget
+    from ipm.optim.targets import MaskTarget, MeshTarget
 
     if (masks is None) == (target_mesh is None):
-        raise ValueError("expected exactly one target: masks (a folder) or a target mesh")
+        raise InputError("expected exactly one target, masks (a folder) or a target mesh; got "
+                         + ("both" if masks is not None else "neither"))
     if masks is not None:
         from ipm.io.masks import CAMERAS_FILE, load_mask_set
 
@@ -48,20 +54,20 @@ def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | No
             m, cams = _masks_without_cameras(folder)
         else:
             if not (folder / CAMERAS_FILE).is_file():
-                raise ValueError(f"--masks {folder}: no {CAMERAS_FILE}; give the cameras, or recover them "
-                                 "with --camera fit")
+                raise InputError(f"--masks {folder}: expected {CAMERAS_FILE}, got no {CAMERAS_FILE}; give the "
+                                 "cameras, or recover them with --camera fit")
             ms = load_mask_set(folder)
             m, cams = ms.masks, list(ms.cameras)
             sizes = {(c.width, c.height) for c in cams}
             if len(sizes) > 1:
-                raise ValueError(f"--masks {folder}: masks of different sizes {sorted(sizes)}; expected one size")
+                raise InputError(f"--masks {folder}: expected masks of one size, got sizes {sorted(sizes)}")
         t = torch.as_tensor(m, device=device).to(dtype)
         return MaskTarget(t, [c.to(dtype=dtype, device=device) for c in cams])
     from ipm.io.meshes import load_mesh
 
     mesh = load_mesh(Path(target_mesh), up=up, normalize=True)
     if mesh.n_faces == 0:
-        raise ValueError(f"target mesh {target_mesh} has no faces")
+        raise InputError(f"target mesh {target_mesh}: expected faces, got none")
     return MeshTarget(mesh)
 
 
@@ -74,7 +80,7 @@ def _masks_without_cameras(folder: Path):
 
     paths = sorted(folder.glob("view_*.png"))
     if len(paths) != 1:
-        raise ValueError(f"--camera fit: expected exactly one mask view_000.png in {folder}, got {len(paths)}")
+        raise InputError(f"--camera fit: expected exactly one mask view_000.png in {folder}, got {len(paths)}")
     m = read_mask(paths[0])
     H, W = m.shape
     return np.stack([m]), [orbit_camera(0.0, 25.0, 3.2, fov_deg=40.0, width=W, height=H)]
@@ -87,17 +93,26 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
     for ``settings`` (budget, seed, discrete, camera, loss, local, lr, preset, free, fix, ...)."""
     from ipm.generators import get_generator
     from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, read_trajectory, write_json
+    from ipm.optim.evaluator import ReplayMismatch
     from ipm.optim.fit import FitSettings, hard_scores, run_fit
+    from ipm.optim.problem import Problem
 
     gen = get_generator(generator, library=library) if isinstance(generator, str) else generator
     replay: list[dict] = []
     run_dir = Path(run_dir) if run_dir is not None else None
     if resume:
         if run_dir is None or not (run_dir / SETTINGS).is_file():
-            raise ValueError(f"--resume: {run_dir} is not a run folder (no {SETTINGS})")
-        saved = json.loads((run_dir / SETTINGS).read_text())
+            raise InputError(f"--resume: expected a run folder with {SETTINGS}, got {run_dir}")
+        try:
+            saved = json.loads((run_dir / SETTINGS).read_text())
+        except json.JSONDecodeError as e:
+            raise InputError(f"--resume {run_dir}: expected JSON in {SETTINGS}, got {e.msg} at line {e.lineno}"
+                             ) from None
+        if not isinstance(saved, dict) or "settings" not in saved:
+            raise InputError(f"--resume {run_dir}: expected the settings of a run in {SETTINGS}, got none")
         if saved.get("generator") != gen.name:
-            raise ValueError(f"--resume: the run was for generator {saved.get('generator')!r}, not {gen.name!r}")
+            raise InputError(f"--resume {run_dir}: expected the run's generator {saved.get('generator')!r}, "
+                             f"got {gen.name!r}")
         cfg = _settings_from_json(saved["settings"])
         masks, target_mesh, up = saved.get("masks"), saved.get("target_mesh"), saved.get("up", "y")
         replay = read_trajectory(run_dir / TRAJECTORY)
@@ -105,8 +120,6 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
         cfg = FitSettings(**settings)
     cfg.check()
     target = load_target(masks=masks, target_mesh=target_mesh, up=up, camera=cfg.camera, device=device)
-    from ipm.optim.fit import Problem
-
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written
     sink = None
     if run_dir is not None:
@@ -118,6 +131,8 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
         sink = Trajectory(run_dir / TRAJECTORY, keep=len(replay))
     try:
         result, prob, best = run_fit(gen, target, cfg, sink=sink, replay=replay, progress=progress)
+    except ReplayMismatch as e:
+        raise InputError(f"--resume {run_dir}: the run does not match its recorded trajectory: {e}") from e
     finally:
         if sink is not None:
             sink.close()
@@ -136,19 +151,18 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     import ipm
     from ipm.io.export import export_mesh
     from ipm.io.runs import RESULT, write_json
-    from ipm.optim.fit import MaskTarget
+    from ipm.optim.targets import MaskTarget
 
     run_dir = Path(run_dir)
     x = best["x"].to(torch.float64)
     mesh = prob.mesh_world(x, best["discrete"]).detach()
-    params = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
-    write_json(run_dir / "params.json", params)
     meta = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
+    write_json(run_dir / "params.json", meta)
     export_mesh(mesh, run_dir / "mesh.glb", meta, sidecar=False)
     export_mesh(mesh, run_dir / "mesh.obj", meta, sidecar=False)
     files = {"params": "params.json", "mesh": ["mesh.glb", "mesh.obj"]}
     if isinstance(prob.target, MaskTarget):
-        from ipm.io.atomic import atomic_path
+        from ipm.files import atomic_path
         from ipm.render.raster import rasterize_mesh
         from ipm.viz.overlay import overlay
 

@@ -110,7 +110,8 @@ def test_nested_settings_from_dicts_and_the_learning_rate():
 
 
 def test_enumerate_refuses_too_many_combinations():
-    from ipm.optim.discrete import Space, enumerate_discrete
+    from ipm.optim.discrete import Space
+    from ipm.optim.strategies.enumeration import enumerate_discrete
     from ipm.params import Param
 
     space = Space(2, np.arange(2), [Param("a", 0, 0, 9, "int"), Param("b", 0, 0, 9, "int")],

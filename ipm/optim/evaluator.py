@@ -8,7 +8,11 @@ record to a sink (the run's ``trajectory.jsonl``).
 Resuming: records of an interrupted run are *replayed*. A deterministic search (same seed) asks for the
 same points in the same order, so the evaluator answers from the records while they last (checking
 that the point matches) and then goes on live. The resumed run therefore ends exactly where an
-uninterrupted run would, whatever the search strategy (nlopt's internal state included).
+uninterrupted run would, whatever the search strategy (nlopt's internal state included). A point that
+differs from its record raises :class:`ReplayMismatch` (an :class:`~ipm.errors.InputError`: the run folder
+does not belong to these settings or this code). Every record's ``t`` is the run's elapsed time in seconds,
+counted over all its runs (the replayed records' time included), so :attr:`Evaluator.elapsed_s` is the
+time of the whole run after any number of resumes.
 """
 
 from __future__ import annotations
@@ -21,6 +25,8 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ipm.errors import InputError
+
 log = logging.getLogger(__name__)
 
 # objective(x (m,) float64 in [0, 1], discrete, need_grad) -> (loss (0-dim), grad (m,) or None, extras)
@@ -31,7 +37,7 @@ class BudgetExhausted(Exception):
     """Raised by the evaluator when the evaluation budget is spent."""
 
 
-class ReplayMismatch(RuntimeError):
+class ReplayMismatch(InputError):
     """A resumed run asked for a different point than the recorded run did."""
 
 
@@ -50,7 +56,7 @@ class Evaluator:
     def __init__(self, objective: Objective, budget: int, *, sink: Callable[[dict], None] | None = None,
                  replay: Sequence[dict] = (), progress: Callable[[Evaluator], None] | None = None):
         if budget < 1:
-            raise ValueError(f"budget: expected at least 1 evaluation, got {budget}")
+            raise InputError(f"budget: expected at least 1 evaluation, got {budget}")
         self.objective = objective
         self.budget = int(budget)
         self.sink = sink
@@ -62,6 +68,13 @@ class Evaluator:
         self.last: dict = {}   # the latest record, live or replayed
         self.best_by_discrete: dict[tuple, Best] = {}
         self.t0 = time.perf_counter()
+        # the recorded time of the runs before this one (records' "t" count from the first run's start)
+        self.t_before = float(self.replay[-1].get("t", 0.0)) if self.replay else 0.0
+
+    @property
+    def elapsed_s(self) -> float:
+        """Seconds spent on this run, earlier runs of a resumed one included."""
+        return self.t_before + time.perf_counter() - self.t0
 
     @property
     def remaining(self) -> int:
@@ -80,9 +93,9 @@ class Evaluator:
         if self.replaying:
             rec = self.replay[self.count]
             if rec["x"] != xs or rec["discrete"] != disc or bool(rec.get("grad") is not None) != grad:
-                raise ReplayMismatch(
-                    f"resume: evaluation {self.count} differs from the recorded run (different seed, "
-                    "settings or code?); start a new run instead")
+                raise ReplayMismatch(f"resume: evaluation {self.count}: expected the recorded run's point, got "
+                                     f"{_difference(rec, xs, disc, grad)} (different seed, settings or code?); "
+                                     "start a new run instead")
             loss = float(rec["loss"])
             g = torch.tensor(rec["grad"], dtype=torch.float64) if rec.get("grad") is not None else None
             extras = {k: rec[k] for k in rec if k not in ("i", "x", "discrete", "loss", "grad", "phase", "t")}
@@ -99,7 +112,7 @@ class Evaluator:
                 g = torch.tensor(gl, dtype=torch.float64)
             rec = {"i": self.count, "phase": self.phase, "loss": loss, "x": xs, "discrete": disc,
                    "grad": None if g is None else [float(v) for v in g.tolist()],
-                   "t": round(time.perf_counter() - self.t0, 4), **extras}
+                   "t": round(self.elapsed_s, 4), **extras}
             if self.sink is not None:
                 self.sink(rec)
         self.last = rec
@@ -123,3 +136,16 @@ class Evaluator:
     def leaders(self, k: int) -> list[Best]:
         """The best point of each of the ``k`` best discrete combinations."""
         return sorted(self.best_by_discrete.values(), key=lambda b: b.loss)[:k]
+
+
+def _difference(rec: dict, xs: list[float], disc: dict, grad: bool) -> str:
+    """What differs between a recorded evaluation and the one asked for, in words."""
+    if rec["discrete"] != disc:
+        return f"discrete values {disc} instead of {rec['discrete']}"
+    if (rec.get("grad") is not None) != grad:
+        return "an evaluation " + ("with" if grad else "without") + " a gradient where the record has " + (
+            "none" if grad else "one")
+    if len(rec["x"]) != len(xs):
+        return f"a vector of length {len(xs)} instead of {len(rec['x'])}"
+    i = next(i for i, (a, b) in enumerate(zip(rec["x"], xs)) if a != b)
+    return f"x[{i}] = {xs[i]!r} instead of {rec['x'][i]!r}"

@@ -3,16 +3,16 @@ nlopt's bound-constrained gradient algorithms (LD_MMA, LD_LBFGS) fed with exact 
 
 from __future__ import annotations
 
-import logging
 import math
 
 import torch
 
+from ipm.errors import InputError
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.optim.nlopt_run import minimize
 
 LOCAL = ("adam", "mma", "lbfgs")
 NLOPT_LOCAL = {"mma": "LD_MMA", "lbfgs": "LD_LBFGS"}
-log = logging.getLogger(__name__)
 
 
 def adam(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, lr: float = 0.01, *,
@@ -48,11 +48,12 @@ def adam(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, lr: float 
 
 def nlopt_local(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, algorithm: str = "mma",
                 mask: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
-    """nlopt LD_MMA or LD_LBFGS within [0, 1]^m for at most ``steps`` evaluations."""
+    """nlopt LD_MMA or LD_LBFGS within [0, 1]^m for at most ``steps`` evaluations; returns (best x (m,),
+    best loss). An exception raised by the objective propagates (:func:`ipm.optim.nlopt_run.minimize`)."""
     import nlopt
 
     if algorithm not in NLOPT_LOCAL:
-        raise ValueError(f"local optimizer: expected one of {', '.join(LOCAL)}, got {algorithm!r}")
+        raise InputError(f"local optimizer: expected one of {', '.join(LOCAL)}, got {algorithm!r}")
     x0 = x0.detach().to(torch.float64)
     free = torch.ones_like(x0, dtype=torch.bool) if mask is None else mask.bool()
     idx = free.nonzero().flatten()
@@ -73,28 +74,20 @@ def nlopt_local(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, alg
 
     def f(z, grad):
         x = full(z)
-        try:
-            loss, g = ev(x, discrete)
-        except BudgetExhausted:
-            raise nlopt.ForcedStop from None
+        loss, g = ev(x, discrete)
         if loss < best["loss"]:
             best.update(loss=loss, x=x.clone())
         if grad.size > 0:
             grad[:] = g[idx].numpy()
         return loss
 
-    opt.set_min_objective(f)
-    try:
-        opt.optimize(x0[idx].numpy().copy())
-    except (nlopt.ForcedStop, nlopt.RoundoffLimited, ValueError, RuntimeError) as e:
-        # nlopt reports budget stops and stalls as exceptions; the best point seen is kept
-        log.debug("nlopt %s stopped: %s", algorithm, type(e).__name__)
+    minimize(opt, f, x0[idx].numpy().copy(), algorithm)
     return best["x"], best["loss"]
 
 
 def refine(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, method: str = "adam",
            lr: float = 0.01, mask: torch.Tensor | None = None) -> tuple[torch.Tensor, float]:
-    """Dispatch to :func:`adam` or :func:`nlopt_local` by name."""
+    """Dispatch to :func:`adam` or :func:`nlopt_local` by name; returns (best x (m,), best loss)."""
     if method == "adam":
         return adam(ev, x0, discrete, steps, lr, mask=mask)
     return nlopt_local(ev, x0, discrete, steps, method, mask=mask)

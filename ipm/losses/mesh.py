@@ -1,35 +1,13 @@
-"""Differentiable losses (torch only). Each is a pure function; ``LOSSES`` names the mask losses.
-
-Masks: ``pred``, ``target`` are ``(..., H, W)`` in [0, 1]. Meshes: Chamfer distance between surface
-samples drawn with fixed barycentric coordinates, so samples move smoothly with the vertices.
-SDF generators against a mesh: the SDF at target surface samples (should be 0) and occupancy at
-volume samples (inside/outside of the target from the generalized winding number).
-"""
+"""Mesh against mesh: Chamfer distance between surface samples drawn with fixed barycentric
+coordinates, so that the samples move smoothly with the vertices."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
-
-def soft_iou_loss(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:
-    """``1 - sum(p t) / sum(p + t - p t)`` per mask, averaged over leading axes. Range [0, 1]."""
-    inter = (pred * target).sum((-2, -1))
-    union = (pred + target - pred * target).sum((-2, -1))
-    return (1.0 - inter / (union + eps)).mean()
-
-
-def mse_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Mean squared difference of the masks."""
-    return ((pred - target) ** 2).mean()
-
-
-LOSSES: dict[str, Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = {
-    "iou": soft_iou_loss,
-    "mse": mse_loss,
-}
+from ipm.errors import InputError
 
 
 @dataclass(frozen=True)
@@ -50,7 +28,7 @@ class SurfaceSampler:
         tri = v[faces]
         area = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=-1).norm(dim=-1)
         if not torch.isfinite(area).all() or area.sum() <= 0:
-            raise ValueError("expected a mesh with positive area, got zero area")
+            raise InputError("expected a mesh with positive area, got zero area")
         idx = torch.multinomial(area / area.sum(), n, replacement=True, generator=generator)
         uv = torch.rand(n, 2, generator=generator, dtype=v.dtype).to(v.device)
         flip = uv.sum(1) > 1
@@ -87,19 +65,3 @@ def chamfer_loss(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
     ab = ((a - b[nearest(a, b)]) ** 2).sum(-1).mean()
     ba = ((b - a[nearest(b, a)]) ** 2).sum(-1).mean()
     return ab + ba
-
-
-def sdf_surface_loss(sdf_values: torch.Tensor) -> torch.Tensor:
-    """Mean absolute SDF at points sampled on the target surface (0 when the surfaces agree)."""
-    return sdf_values.abs().mean()
-
-
-def occupancy_loss(sdf_values: torch.Tensor, inside: torch.Tensor, sharpness: float = 50.0) -> torch.Tensor:
-    """Binary cross-entropy between ``sigmoid(-sharpness * sdf)`` and the target's inside labels."""
-    logits = -sharpness * sdf_values
-    return torch.nn.functional.binary_cross_entropy_with_logits(logits, inside.to(sdf_values.dtype))
-
-
-def prior_loss(u: torch.Tensor, u_ref: torch.Tensor) -> torch.Tensor:
-    """Squared distance in normalized parameter space to a reference (a preset)."""
-    return ((u - u_ref) ** 2).mean()

@@ -1,0 +1,124 @@
+"""Where a fit starts: a coarse grid over the pose (and camera), scale and translation set from the masks'
+areas and centroids, the best few poses kept; and the generator's presets posed like the best."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+
+from ipm.optim.encoding import T_RANGE
+from ipm.optim.evaluator import Evaluator
+from ipm.optim.problem import Problem, centroids
+from ipm.optim.targets import MaskTarget
+from ipm.types import Camera
+
+YAWS = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
+# camera fit: (elevation, distance, FOV) of the grid
+CAMERA_GRID = tuple((e, 3.2, f) for e in (5.0, 25.0, 45.0) for f in (25.0, 40.0, 60.0))
+
+
+def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4):
+    """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale and translation set
+    from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best,
+    whether the grid left the yaw undetermined: see :func:`yaw_free`)."""
+    d = dict(prob.d0)
+    graded = pose_grid(prob, ev, d, keep=keep)
+    starts = [(e[1], d) for e in graded] or [(prob.x0(), d)]
+    return starts, preset_starts(prob, starts[0][0]), yaw_free(graded)
+
+
+def pose_grid(prob: Problem, ev: Evaluator, d: dict, x: torch.Tensor | None = None, keep: int = 4
+              ) -> list[tuple]:
+    """The best ``keep`` poses of the shape with discrete values ``d`` and the generator coordinates of
+    ``x`` (default: the start), best first, as :func:`spread_starts` entries ``(loss, x, yaw, camera)``."""
+    ev.phase = ev.phase if x is not None else "init"
+    theta = None if x is None else prob.decode(x.detach().double())[0]
+    yaws = list(YAWS) if prob.s.pose else [0.0]
+    cams = [None]
+    if prob.cam_fit:
+        cams = list(CAMERA_GRID)
+    scored = []
+    for cam in cams:
+        for yaw in yaws:
+            if ev.remaining <= 1:
+                break
+            xp = prob.x0(yaw=yaw, camera=cam, theta=theta, **prob.mesh_start(d))
+            if isinstance(prob.target, MaskTarget) and prob.s.pose:
+                loss, _ = ev(xp, d, grad=False)
+                area, cen = ev.last.get("area"), ev.last.get("centroid")
+                tgt = prob.target.masks.sum((-2, -1))
+                if area is not None and min(area) > 0:
+                    s = float(np.clip(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)), 0.26, 3.9))
+                    t = (0.0, 0.0, 0.0)
+                    if cen is not None:
+                        cams_x = prob.cameras(xp)
+                        # scaling about the canonical center moves the rendered centroid by a factor s
+                        # relative to the image center of the object; the offset is small, so ignore it
+                        t = translation_from_centroids(cams_x, cen, centroids(prob.target.masks))
+                    xp = prob.x0(yaw=yaw, scale=s, t=t, camera=cam, theta=theta)
+            loss, _ = ev(xp, d, grad=False)
+            scored.append((loss, xp, yaw, cam))
+    return spread_starts(scored, keep)
+
+
+def yaw_free(graded: list[tuple], tol: float = 1e-3) -> bool:
+    """Whether a pose grid's entries (:func:`pose_grid`) leave the yaw undetermined: three or more poses
+    tied with the best, as for a body of revolution (a mug started without its handle)."""
+    return len(graded) >= 3 and all(abs(e[0] - graded[0][0]) <= tol * max(abs(graded[0][0]), 1e-12)
+                                    for e in graded[:3])
+
+
+def spread_starts(scored: list[tuple], keep: int, tol: float = 1e-3) -> list[tuple]:
+    """The ``keep`` best of ``(loss, x, yaw, camera)`` entries (more if more tie with the best), best
+    first; among equal losses (within ``tol``, relative), the yaw farthest from those already kept
+    comes first.
+
+    A shape that looks the same from every yaw (a body of revolution: a mug started without its
+    handle) leaves the pose to be decided by other discrete values; the kept poses, which
+    :func:`ipm.optim.discrete.best_pose` tries for those, should then cover the circle rather than be
+    the first few of the grid."""
+    rest = sorted(scored, key=lambda e: e[0])
+    out: list[tuple] = []
+    if rest:  # every pose tied with the best is kept: the grid's spacing is then the search's
+        keep = max(keep, sum(e[0] <= rest[0][0] + tol * max(abs(rest[0][0]), 1e-12) for e in rest))
+
+    def gap(e) -> float:
+        same = [abs((e[2] - o[2] + 180.0) % 360.0 - 180.0) for o in out if o[3] == e[3]]
+        return min(same, default=360.0)
+
+    while rest and len(out) < keep:
+        lo = rest[0][0]
+        tied = [i for i, e in enumerate(rest) if e[0] <= lo + tol * max(abs(lo), 1e-12)]
+        pick = max(tied, key=lambda i: gap(rest[i]))  # max keeps the first of equal gaps: the grid order
+        out.append(rest.pop(pick))
+    return out
+
+
+def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tensor, dict]]:
+    """The generator's presets (other than the starting one) as (x, discrete), posed like ``x_best``."""
+    out = []
+    for name in sorted(prob.gen.presets):
+        if name == prob.s.preset:
+            continue
+        vals = prob.gen.values(name, prob.s.fix)
+        th, dd = prob.gen.split(vals, torch.float64)
+        out.append((torch.cat([prob.encode_params(th), x_best[prob.n:]]), dict(dd)))
+    return out
+
+
+def translation_from_centroids(cams: list[Camera], rendered: list, target: list) -> list[float]:
+    """World translation (3,) moving rendered mask centroids onto the target's, by least squares over
+    views (one view constrains the two directions parallel to its image plane)."""
+    from ipm.render.camera import camera_frame
+
+    rows, rhs = [], []
+    for cam, (rx, ry), (tx, ty) in zip(cams, rendered, target):
+        frame = camera_frame(cam.to(torch.float64)).numpy()  # rows: right, up, backward
+        dist = float((cam.eye - cam.target).double().norm())
+        px = dist * 2.0 * math.tan(math.radians(float(cam.fov_deg)) / 2.0) / cam.height  # world size of a pixel
+        rows += [frame[0] / px, -frame[1] / px]
+        rhs += [tx - rx, ty - ry]
+    t, *_ = np.linalg.lstsq(np.array(rows), np.array(rhs), rcond=None)
+    return [float(np.clip(v, -T_RANGE, T_RANGE)) for v in t]

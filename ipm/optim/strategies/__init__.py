@@ -1,0 +1,14 @@
+"""Discrete (and global) search strategies, one module each, registered by name in :data:`STRATEGIES`.
+
+A strategy is a function ``(ev, space, refine, rng, settings) -> None`` that spends the evaluator's budget
+(:class:`~ipm.optim.discrete.Space`, :data:`~ipm.optim.discrete.Refine`; ``settings`` is the fit's
+:class:`~ipm.optim.fit.FitSettings`, or None for the defaults), registered with
+``@STRATEGIES.register("name")``. Adding one is one new module in this package; ``FitSettings`` and
+``ipm fit --discrete`` accept its name from then on. The best point is what the evaluator saw.
+"""
+
+from __future__ import annotations
+
+from ipm.registry import Registry
+
+STRATEGIES = Registry("discrete search strategy", packages=["ipm.optim.strategies"])

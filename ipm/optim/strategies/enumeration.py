@@ -1,0 +1,56 @@
+"""``enumerate``: every discrete combination (at most :data:`MAX_ENUMERATE`), refined by gradient with
+successive halving."""
+
+from __future__ import annotations
+
+import itertools
+import math
+
+import numpy as np
+
+from ipm.errors import InputError
+from ipm.optim.discrete import Refine, Space, best_pose
+from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.optim.strategies import STRATEGIES
+
+MAX_ENUMERATE = 64
+
+
+@STRATEGIES.register("enumerate")
+def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None,
+                       steps0: int | None = None) -> None:
+    """All discrete combinations, refined from the best start with successive halving."""
+    ranges = [range(int(p.lo), int(p.hi) + 1) for p in space.discrete]
+    combos = [dict(zip((p.name for p in space.discrete), c)) for c in itertools.product(*ranges)]
+    if len(combos) > MAX_ENUMERATE:
+        raise InputError(f"--discrete enumerate: expected at most {MAX_ENUMERATE} combinations, got "
+                         f"{len(combos)} combinations of {', '.join(p.name for p in space.discrete)}; "
+                         "use memetic or nlopt")
+    x0 = space.starts[0][0]
+    ev.phase = "enumerate:poses"
+    try:
+        alive = [(best_pose(ev, space, x0, {**space.fixed_discrete, **c}), {**space.fixed_discrete, **c}, math.inf)
+                 for c in combos]
+    except BudgetExhausted:
+        return
+    # successive halving spends about steps0 * len(combos) per round, over log2(len) + 1 rounds
+    rounds = math.ceil(math.log2(len(combos))) + 1 if len(combos) > 1 else 1
+    steps = steps0 or max(5, ev.remaining // (len(combos) * rounds))
+    rnd = 0
+    try:
+        while alive:
+            rnd += 1
+            ev.phase = f"enumerate:round{rnd}"
+            refined = []
+            for x, d, _ in alive:
+                xr, loss = refine(x, d, steps)
+                refined.append((xr, d, loss))
+            alive = sorted(refined, key=lambda a: a[2])
+            if len(alive) == 1:
+                # the winner gets what is left
+                refine(alive[0][0], alive[0][1], ev.remaining)
+                return
+            alive = alive[: max(1, len(alive) // 2)]
+            steps *= 2
+    except BudgetExhausted:
+        return

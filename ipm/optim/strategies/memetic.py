@@ -1,0 +1,115 @@
+"""``memetic``: a genetic algorithm whose offspring are refined by a short Adam run (Lamarckian), the
+thesis authors' method; defaults are theirs (mutation probability 0.2, Gaussian with 0.3 x range, 50 Adam
+steps at lr 0.01), with tournament selection, one-point crossover, elitism and restarts. Added to it: a
+local search on the discrete genes (every generation the elite's untried +-1 neighbours in each discrete
+value are refined too), because a count gene rarely moves under mutation alone when budgets are small.
+Settings: :class:`~ipm.optim.discrete.MemeticSettings` (``FitSettings.memetic``)."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import torch
+
+from ipm.optim.discrete import MemeticSettings, Refine, Space, best_pose, from_genome, genome
+from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.optim.strategies import STRATEGIES
+
+log = logging.getLogger(__name__)
+
+
+@STRATEGIES.register("memetic")
+def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None) -> None:
+    """Genetic search with gradient-refined offspring; stops when the budget is spent."""
+    s = MemeticSettings() if settings is None else settings.memetic
+    pop: list[tuple[torch.Tensor, dict, float]] = []
+    pose0 = space.starts[0][0]
+
+    def random_individual() -> tuple[torch.Tensor, dict]:
+        g = rng.random(len(space.gen) + len(space.discrete))
+        return from_genome(space, g, pose0)
+
+    ev.phase = "memetic:init"
+    # the kept starts (the best poses of the grid: a symmetric body seen from few views often leaves
+    # several poses close, and the right one only wins after its shape is refined), then the presets
+    # (diverse discrete values), then random individuals
+    # (when the start looks alike from every yaw, its poses are one start: pose_search poses the rest)
+    n_starts = 1 if space.pose_search is not None else max(1, s.population // 2)
+    candidates = list(space.starts[:n_starts]) + list(space.presets)
+    while len(candidates) < s.population:
+        candidates.append(random_individual())
+    tried: set[tuple] = set()
+
+    def key(d: dict) -> tuple:
+        return tuple(sorted(d.items()))
+
+    def neighbours(elite) -> list[tuple[torch.Tensor, dict, float]]:
+        # tried from this elite's continuous values: a neighbour is retried when the elite changes
+        origin = tuple(np.round(elite[0].numpy(), 3))
+        out = []
+        for p in space.discrete:
+            for step in (-1, 1):
+                d = dict(elite[1])
+                d[p.name] = int(np.clip(d[p.name] + step, p.lo, p.hi))
+                if d == elite[1] or (key(d), origin) in tried:
+                    continue
+                tried.add((key(d), origin))
+                xr, loss = refine(elite[0], d, s.refine_steps)
+                out.append((xr, d, loss))
+        return out
+
+    try:
+        for i, (x, d) in enumerate(candidates[: s.population]):
+            xr, loss = refine(x if i < n_starts else best_pose(ev, space, x, d), d, s.refine_steps)
+            pop.append((xr, d, loss))
+        best = min(p[2] for p in pop)
+        stall, generation = 0, 0
+        while True:
+            generation += 1
+            ev.phase = f"memetic:gen{generation}"
+            pop.sort(key=lambda p: p[2])
+            # elitism, and the elite keeps descending: without it no candidate gets more than one short
+            # refinement before the polish, which is too little where many parameters are determined
+            elite = pop[0]
+            if s.refine_elite:
+                xr, loss = refine(elite[0], elite[1], s.refine_steps)
+                elite = (xr, elite[1], loss) if loss <= elite[2] else elite
+            children = [elite]
+            while len(children) < s.population:
+                a, b = (min(rng.choice(len(pop), size=s.tournament, replace=False)) for _ in range(2))
+                ga, gb = genome(space, pop[a][0], pop[a][1]), genome(space, pop[b][0], pop[b][1])
+                cut = int(rng.integers(1, len(ga))) if len(ga) > 1 else 0
+                child = np.concatenate([ga[:cut], gb[cut:]])
+                mut = rng.random(len(child)) < s.p_mutation
+                child[mut] += rng.normal(0.0, s.sigma_mutation, int(mut.sum()))
+                child = np.clip(child, 0.0, 1.0)
+                x, d = from_genome(space, child, pop[a][0])  # pose and camera come from parent a
+                xr, loss = refine(x, d, s.refine_steps)
+                children.append((xr, d, loss))
+            if s.neighbours:
+                ev.phase = f"memetic:gen{generation}:neighbours"
+                children.sort(key=lambda p: p[2])
+                extra = neighbours(children[0])
+                children = sorted(children + extra, key=lambda p: p[2])[: s.population]
+            pop = children
+            gen_best = min(p[2] for p in pop)
+            stall = stall + 1 if gen_best >= best - 1e-6 else 0
+            best = min(best, gen_best)
+            genomes = np.stack([genome(space, p[0], p[1]) for p in pop])
+            diversity = float(genomes.std(0).mean())
+            if stall >= s.stall_generations or diversity < s.min_diversity:
+                log.info("memetic: restart at generation %d (stall %d, diversity %.3f)", generation, stall,
+                         diversity)
+                pop.sort(key=lambda p: p[2])
+                keep = pop[0]
+                ev.phase = f"memetic:restart{generation}"
+                pop = [keep]
+                for _ in range(s.population - 1):
+                    x, d = random_individual()
+                    x = best_pose(ev, space, x, d)
+                    xr, loss = refine(x, d, s.refine_steps)
+                    pop.append((xr, d, loss))
+                stall = 0
+    except BudgetExhausted:
+        return

@@ -1,0 +1,101 @@
+"""Search strategies and mask losses are registry members: one new module in a package registers one, and
+``FitSettings`` and ``run_fit`` accept it by name (here from a throwaway package on ``sys.path``)."""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+import pytest
+import torch
+from boxes import Boxes, boxes_target
+
+from ipm.errors import InputError
+from ipm.losses import LOSSES
+from ipm.optim.fit import FitSettings, run_fit
+from ipm.optim.strategies import STRATEGIES
+
+STRATEGY = '''
+from ipm.optim.strategies import STRATEGIES
+
+CALLS = []
+
+
+@STRATEGIES.register("{name}")
+def first_start_only(ev, space, refine, rng, settings=None):
+    CALLS.append(ev.remaining)
+    x, d = space.starts[0]
+    refine(x, d, ev.remaining)
+'''
+
+LOSS = '''
+from ipm.losses import LOSSES
+
+CALLS = []
+
+
+@LOSSES.register("{name}")
+def l1_loss(pred, target):
+    CALLS.append(1)
+    return (pred - target).abs().mean()
+'''
+
+
+def _package(tmp_path, monkeypatch, pkg: str, module: str, text: str):
+    (tmp_path / pkg).mkdir()
+    (tmp_path / pkg / "__init__.py").write_text("")
+    (tmp_path / pkg / f"{module}.py").write_text(text)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    importlib.invalidate_caches()
+
+
+@pytest.fixture(scope="module")
+def target():
+    return boxes_target()
+
+
+def test_a_strategy_from_a_new_module(tmp_path, monkeypatch, target):
+    name, pkg = "throwaway_first_start", "throwaway_strategies"
+    with pytest.raises(InputError, match="discrete search: expected one of"):
+        FitSettings(discrete=name).check()
+    _package(tmp_path, monkeypatch, pkg, "first_start", STRATEGY.format(name=name))
+    monkeypatch.setattr(STRATEGIES, "packages", [*STRATEGIES.packages, pkg])
+    try:
+        assert name in STRATEGIES.names()
+        with pytest.raises(InputError, match=f"expected one of .*{name}"):
+            FitSettings(discrete="nope").check()
+        res, _, best = run_fit(Boxes(), target, FitSettings(budget=40, discrete=name, seed=0, lr=0.03))
+        calls = sys.modules[f"{pkg}.first_start"].CALLS
+        assert len(calls) == 1 and 0 < calls[0] < 40 and res.evaluations == 40
+    finally:
+        STRATEGIES.remove(name)
+        sys.modules.pop(f"{pkg}.first_start", None)
+        sys.modules.pop(pkg, None)
+    assert name not in STRATEGIES
+
+
+def test_a_mask_loss_from_a_new_module(tmp_path, monkeypatch, target):
+    name, pkg = "throwaway_l1", "throwaway_losses"
+    with pytest.raises(InputError, match="loss: expected one of iou, mse"):
+        FitSettings(loss=name).check()
+    _package(tmp_path, monkeypatch, pkg, "l1", LOSS.format(name=name))
+    monkeypatch.setattr(LOSSES, "packages", [*LOSSES.packages, pkg])
+    try:
+        assert name in LOSSES
+        res, _, _ = run_fit(Boxes(), target, FitSettings(budget=30, discrete="none", loss=name, seed=0))
+        assert len(sys.modules[f"{pkg}.l1"].CALLS) == 30 and res.loss < 1.0
+    finally:
+        LOSSES.remove(name)
+        sys.modules.pop(f"{pkg}.l1", None)
+        sys.modules.pop(pkg, None)
+    assert name not in LOSSES
+
+
+def test_the_builtin_members():
+    assert {"memetic", "nlopt", "enumerate", "none"} <= set(STRATEGIES.names())
+    assert {"iou", "mse"} <= set(LOSSES.names())
+    p, t = torch.rand(2, 8, 8, dtype=torch.float64), torch.rand(2, 8, 8, dtype=torch.float64)
+    from ipm.losses import mse_loss, soft_iou_loss
+
+    assert LOSSES["iou"] is soft_iou_loss and LOSSES["mse"] is mse_loss
+    assert float(LOSSES["mse"](p, p)) == 0.0 and 0.0 <= float(LOSSES["iou"](p, t)) <= 1.0
