@@ -106,7 +106,7 @@ BAD = {
     "range name": (lambda t, m: ["--masks", m, "--range", "floors=1:3"], "not a searched discrete parameter"),
     "unknown free": (lambda t, m: ["--masks", m, "--fix", "no_such=1"], "no_such"),
     "two targets": (lambda t, m: ["--masks", m, "--target-mesh", _write(t / "x.obj", "")], "exactly one target"),
-    "negative seed": (lambda t, m: ["--masks", m, "--seed", "-1"], "seed: expected a seed >= 0, got -1"),
+    "negative seed": (lambda t, m: ["--masks", m, "--seed", "-1"], "'--seed': Input should be greater than or equal to 0"),
     "nan prior": (lambda t, m: ["--masks", m, "--prior", "nan"], "prior weight: expected a weight >= 0, got nan"),
 }
 

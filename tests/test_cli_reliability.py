@@ -138,7 +138,7 @@ CASES = {
     "fit: budget 0": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--budget", "0", "-o", o],
                       "--budget"),
     "fit: prior nan": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--prior", "nan", "-o", o],
-                       "--prior"),
+                       "prior"),
     "fit: negative seed": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--seed", "-1",
                                          "-o", o], "--seed"),
     "fit: unknown discrete search": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--discrete",
@@ -286,8 +286,8 @@ def test_outputs_are_readable_by_others(tmp_path, capsys):
 def test_os_refusals_name_the_output_not_the_temporary_file(tmp_path, monkeypatch):
     import errno
 
-    from ipm.errors import InputError
     from ipm import files as atomic
+    from ipm.errors import InputError
 
     def full(*a, **k):
         raise OSError(errno.ENOSPC, "No space left on device", str(a[0]))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -59,10 +58,6 @@ def register(app: typer.Typer) -> None:
             gen = _run_generator(resume)
         if resume is None and (masks is None) == (target_mesh is None):
             raise UsageError("expected exactly one target: --masks DIR or --target-mesh MESH")
-        if not math.isfinite(prior) or prior < 0:
-            raise UsageError(f"--prior: expected a finite weight >= 0, got {prior}")
-        if lr is not None and not (math.isfinite(lr) and lr > 0):
-            raise UsageError(f"--lr: expected a finite step > 0, got {lr}")
         if budget < 1:
             raise UsageError(f"--budget: expected at least 1 evaluation, got {budget}")
         if up not in ("y", "z"):

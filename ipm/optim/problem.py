@@ -25,7 +25,7 @@ from ipm.params import Param
 from ipm.types import Camera, TriMesh
 
 if TYPE_CHECKING:
-    from ipm.optim.fit import FitSettings
+    from ipm.optim.settings import FitSettings
 
 
 def _narrowed(p: Param, rng) -> Param:
