@@ -10,7 +10,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ipm.errors import InputError
+from ipm.errors import InputError, MethodFailed
 from ipm.types import Camera
 
 DTYPE = torch.float32
@@ -89,7 +89,7 @@ def hull_box(occ: torch.Tensor, extent: float) -> tuple[np.ndarray, np.ndarray]:
     :class:`InputError` if none is set (the masks do not agree on any node)."""
     idx = torch.nonzero(occ)
     if idx.numel() == 0:
-        raise InputError("visual hull is empty: the masks do not agree on any grid node")
+        raise MethodFailed("visual hull is empty: the masks do not agree on any grid node")
     n = occ.shape[0]
     h = 2 * extent / (n - 1)
     lo = idx.amin(0).double().cpu().numpy() * h - extent - h / 2

@@ -52,7 +52,7 @@ import torch.nn.functional as F
 from ipm.bench.methods import Prediction, Task, method
 from ipm.bench.methods._fit import fit_input, loss_terms
 from ipm.bench.views import DTYPE, carve, grid_axis, hull_box
-from ipm.errors import InputError
+from ipm.errors import InputError, MethodFailed
 from ipm.optim.adam import geometric, minimize
 from ipm.types import TriMesh
 
@@ -192,7 +192,7 @@ def sdf_grid(task: Task, s: SdfGridSettings, budget: int, seed: int) -> Predicti
     occ = carve(task.masks, task.cameras, grid_axis(n, ext))
     if s.init == "hull":
         if not occ.any():
-            raise InputError("visual hull is empty: the masks do not agree on any grid node")
+            raise MethodFailed("visual hull is empty: the masks do not agree on any grid node")
         g0 = signed_distance_grid(occ, ext)
     else:
         center, radii = hull_box(occ, ext)

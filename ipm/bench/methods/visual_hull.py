@@ -15,7 +15,7 @@ import torch
 
 from ipm.bench.methods import Prediction, Task, method
 from ipm.bench.views import carve
-from ipm.errors import InputError
+from ipm.errors import MethodFailed
 from ipm.types import TriMesh
 
 EXTENT = 1.2
@@ -33,7 +33,7 @@ def hull_mesh(task: Task, resolution: int) -> tuple[TriMesh, int]:
     keep = carve(task.masks, task.cameras, torch.as_tensor(ax))
     occ = keep.cpu().numpy().astype(np.float32)
     if occ.sum() == 0:
-        raise InputError("visual hull is empty: the masks do not agree on any voxel")
+        raise MethodFailed("visual hull is empty: the masks do not agree on any voxel")
     occ = np.pad(occ, 1)
     h = ax[1] - ax[0]
     verts, faces, _, _ = marching_cubes(occ, 0.5, spacing=(h, h, h))
