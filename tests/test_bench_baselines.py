@@ -20,7 +20,7 @@ from ipm.bench import views as V
 from ipm.bench.methods import METHODS, Task
 from ipm.bench.methods import mesh_deform as MD
 from ipm.bench.methods import sdf_grid as SG
-from ipm.errors import InputError
+from ipm.errors import InputError, MethodFailed
 from ipm.types import TriMesh
 
 SIZE = 64
@@ -102,7 +102,7 @@ def test_bad_tasks_are_value_errors(box):
     bad = Task(np.zeros_like(task.masks[:2]), task.cameras[:2])
     bad.masks[0, :, :2] = True
     bad.masks[1, :, -2:] = True
-    with pytest.raises(InputError, match="visual hull is empty"):
+    with pytest.raises(MethodFailed, match="visual hull is empty"):
         MD.mesh_deform(bad, {}, 5, 0)
 
 
