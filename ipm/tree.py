@@ -63,8 +63,17 @@ class TreeNode:
     # -- declarations ---------------------------------------------------------------------------
     @classmethod
     def param_defs_for(cls, size: int | None) -> tuple[Param, ...]:
-        """Parameter declarations of an instance of the given size (sized nodes override)."""
-        return cls.params
+        """Parameter declarations of an instance of the given size: ``params``, then for sized nodes
+        the parameters of each point (:meth:`point_params`)."""
+        if not cls.sized:
+            return cls.params
+        k = cls.default_size if size is None else size
+        return cls.params + tuple(q for i in range(k) for q in cls.point_params(i, k))
+
+    @classmethod
+    def point_params(cls, i: int, k: int) -> tuple[Param, ...]:
+        """Sized nodes: the parameters of point ``i`` of ``k`` (``x{i}``, ``y{i}``, ...)."""
+        return ()
 
     def param_defs(self) -> tuple[Param, ...]:
         return type(self).param_defs_for(self.size)

@@ -77,11 +77,9 @@ class Polygon(Primitive):
     size_prefix = "x"
 
     @classmethod
-    def param_defs_for(cls, size):
-        k = cls.default_size if size is None else size
-        return tuple(q for i in range(k) for q in (
-            P(f"x{i}", round(0.5 * math.cos(2.0 * math.pi * i / k), 6), *POS),
-            P(f"y{i}", round(0.5 * math.sin(2.0 * math.pi * i / k), 6), *POS)))
+    def point_params(cls, i, k):
+        a = 2.0 * math.pi * i / k
+        return P(f"x{i}", round(0.5 * math.cos(a), 6), *POS), P(f"y{i}", round(0.5 * math.sin(a), 6), *POS)
 
     def eval(self, p, th, kids):
         return polygon_sdf(p[..., 0], p[..., 1], list(zip(th[0::2], th[1::2])))

@@ -180,10 +180,11 @@ class Revolution(Primitive):
     min_size = 2
     size_prefix = "r"
 
+    params = (P("height", 1.0),)
+
     @classmethod
-    def param_defs_for(cls, size):
-        k = cls.default_size if size is None else size
-        return (P("height", 1.0),) + tuple(P(f"r{i}", 0.4, 0.0, 20.0) for i in range(k))
+    def point_params(cls, i, k):
+        return (P(f"r{i}", 0.4, 0.0, 20.0),)
 
     def eval(self, p, th, kids):
         h, *radii = th
