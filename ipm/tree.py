@@ -18,6 +18,8 @@ Trees are at most :data:`MAX_DEPTH` levels deep: deeper input is refused with an
 from __future__ import annotations
 
 import json
+import operator
+import re
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,9 +43,10 @@ class TreeNode:
 
     Class attributes (set by each node type):
       type_name: registry key; arity: number of children, or ``None`` for at least ``min_children``;
-      params: the parameter declarations; sized: True if the parameters depend on ``size``
-      (``default_size``, ``min_size``; ``size_prefix`` names the per-point parameter counted to infer
-      the size from a file's parameter names).
+      params: the parameter declarations; ``size_prefix`` (non-empty for sized nodes, whose parameters
+      depend on ``size``: ``params`` then :meth:`point_params` per point) names the per-point parameter
+      counted to infer the size from a file's parameter names; ``default_size``, ``min_size``.
+      ``sized`` is derived: True when ``size_prefix`` is set.
     """
 
     values: tuple = ()
@@ -59,6 +62,10 @@ class TreeNode:
     default_size: ClassVar[int | None] = None
     min_size: ClassVar[int] = 1
     size_prefix: ClassVar[str] = ""
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        cls.sized = bool(cls.size_prefix)
 
     # -- declarations ---------------------------------------------------------------------------
     @classmethod
@@ -82,7 +89,7 @@ class TreeNode:
     def size_from_names(cls, names: Sequence[str]) -> int | None:
         """The size implied by parameter names (how many ``<size_prefix><i>`` there are)."""
         pre = cls.size_prefix
-        if not (cls.sized and pre):
+        if not pre:
             return None
         return sum(1 for n in names if n.startswith(pre) and n[len(pre):].isdigit()) or None
 
@@ -94,14 +101,15 @@ class TreeNode:
                 raise InputError(f"{cls.type_name}: expected no size, got {size!r}")
             return None
         size = cls.default_size if size is None else size
-        if not isinstance(size, int) or isinstance(size, bool) or size < cls.min_size:
-            try:
-                ok = size is not None and float(size) == int(size) and int(size) >= cls.min_size
-            except (TypeError, ValueError):
-                ok = False
-            if not ok:
-                raise InputError(f"{cls.type_name}: expected size >= {cls.min_size}, got {size!r}")
-        return int(size)
+        if isinstance(size, float) and size.is_integer():
+            size = int(size)
+        try:
+            k = None if isinstance(size, bool) else operator.index(size)  # ints and NumPy ints
+        except TypeError:
+            k = None
+        if k is None or k < cls.min_size:
+            raise InputError(f"{cls.type_name}: expected size >= {cls.min_size}, got {size!r}")
+        return k
 
     # -- construction ---------------------------------------------------------------------------
     @classmethod
@@ -390,16 +398,37 @@ def from_flat(data: Mapping, registry: Registry) -> TreeNode:
     return root
 
 
+def json_nesting(text: str) -> int:
+    """How deeply objects and arrays nest in JSON ``text`` (strings skipped), without parsing it."""
+    depth = deepest = 0
+    for m in _BRACKETS.finditer(_STRINGS.sub('""', text)):
+        depth += 1 if m.group() in "[{" else -1
+        deepest = max(deepest, depth)
+    return deepest
+
+
+_STRINGS = re.compile(r'"(?:\\.|[^"\\])*"')
+_BRACKETS = re.compile(r"[\[\]{}]")
+
+
 def read_json(path: str | Path, what: str) -> object:
-    """A JSON file's data; :class:`InputError` names ``what`` (e.g. "tree file") and the problem."""
+    """A JSON file's data; :class:`InputError` names ``what`` (e.g. "tree file") and the problem.
+
+    Files nesting deeper than a tree of ``MAX_DEPTH`` levels can (an object and a list per level) are
+    refused before the JSON parser recurses into them."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
+    text = path.read_text()
+    nesting = json_nesting(text)
+    if nesting > 2 * MAX_DEPTH + 4:
+        raise InputError(f"{what} {path}: expected a tree at most {MAX_DEPTH} levels deep (the limit), "
+                         f"got JSON nested {nesting} deep")
     try:
-        return json.loads(path.read_text())
+        return json.loads(text)
     except json.JSONDecodeError as e:
         raise InputError(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
 
 
 __all__ = ["MAX_DEPTH", "TreeNode", "Visit", "check_depth", "flat_spec", "from_flat", "node_from_dict",
-           "node_label", "preorder", "read_json", "rebuild", "same_tree", "to_flat"]
+           "node_label", "preorder", "json_nesting", "read_json", "rebuild", "same_tree", "to_flat"]

@@ -9,7 +9,8 @@ PKG = Path(__file__).resolve().parents[1] / "ipm"
 
 # Layer of each top-level module or subpackage; an import may only go to a layer <= its own.
 LAYERS = {
-    "params": 0, "types": 0,
+    "params": 0, "types": 0, "errors": 0, "registry": 0,
+    "tree": 0,             # the node/tree framework shared by SDF and mesh trees
     "sdf": 1, "generators": 2, "jacobian": 2,
     "render": 3, "losses": 4, "metrics": 4, "optim": 5,
     "convert": 6,          # mesh -> universal representations: above generators and metrics, below the CLI

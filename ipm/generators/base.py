@@ -128,7 +128,7 @@ def _declared_generator(path: str) -> str | None:
 
     try:
         data = json.loads(Path(path).read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, RecursionError):  # too deep: the reader says why
         return None
     kind = data.get("generator") if isinstance(data, dict) else None
     return kind if isinstance(kind, str) else None

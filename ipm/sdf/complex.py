@@ -18,7 +18,6 @@ Shipped macros live in ``ipm/sdf/library``; users add theirs with ``--library DI
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -31,6 +30,7 @@ from ipm.errors import InputError
 from ipm.params import Param
 from ipm.sdf.node import NODES, Node, SlotNode, check_children
 from ipm.sdf.tree import node_from_dict
+from ipm.tree import read_json
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +58,7 @@ def _check_expr(e: object, names: set[str], where: str) -> None:
             raise InputError(f"{where}: {op} takes {lo}{'' if hi == lo else '+' if hi is None else '-' + str(hi)} "
                              f"arguments, got {len(args)}")
         if op == "const" and not isinstance(args[0], (int, float)):
-            raise InputError(f"{where}: const takes a number")
+            raise InputError(f"{where}: expected a number after const, got {args[0]!r}")
         for a in args:
             _check_expr(a, names, where)
         return
@@ -213,8 +213,8 @@ def macro_type(spec: Mapping, source: str = "<memory>") -> type[Node]:
     try:
         params = tuple(Param(str(p["name"]), p["default"], p["lo"], p["hi"], p.get("kind", "float"),
                              p.get("doc", "")) for p in spec["params"])
-    except (KeyError, TypeError) as e:
-        raise InputError(f"{where}: each parameter needs name, default, lo, hi (problem: {e})") from None
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{where}: expected parameters with name, default, lo, hi, got a problem: {e}") from None
     names = {p.name for p in params}
     defs = []
     for dname, e in dict(spec.get("defs", {})).items():
@@ -255,10 +255,10 @@ def macro_type(spec: Mapping, source: str = "<memory>") -> type[Node]:
     slots = _slots(template)
     arity = len({s.size for s in slots})
     if sorted({s.size for s in slots}) != list(range(arity)):
-        raise InputError(f"{where}: slots must be numbered 0 .. k-1")
+        raise InputError(f"{where}: expected slots numbered 0 .. k-1, got {sorted({s.size for s in slots})}")
     dim = int(spec.get("dim", template.out_dim))
     if dim != template.out_dim:
-        raise InputError(f"{where}: declared dim {dim} but the tree is {template.out_dim}D")
+        raise InputError(f"{where}: expected a {dim}D tree (the declared dim), got a {template.out_dim}D tree")
     attrs = {
         "type_name": name, "dim": dim, "arity": arity,
         "child_dim": (slots[0].out_dim if slots else None), "exact": bool(spec.get("exact", False)),
@@ -321,10 +321,7 @@ def load_library(dirs: list[Path | str] | None = None) -> list[str]:
 
 
 def _read_macro(path: Path) -> dict:
-    try:
-        spec = json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"macro file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+    spec = read_json(path, "macro file")
     if not isinstance(spec, dict):
         raise InputError(f"macro file {path}: expected a JSON object, got {type(spec).__name__}")
     return spec

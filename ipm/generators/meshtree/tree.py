@@ -206,7 +206,7 @@ def is_mesh_tree_file(path: str | Path) -> bool:
     """True if a JSON file declares ``"generator": "meshtree"`` (tells mesh trees from SDF trees)."""
     try:
         data = json.loads(Path(path).read_text())
-    except (OSError, json.JSONDecodeError):
+    except (OSError, json.JSONDecodeError, RecursionError):
         return False
     return isinstance(data, Mapping) and data.get("generator") == "meshtree"
 

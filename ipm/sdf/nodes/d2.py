@@ -69,12 +69,8 @@ class Polygon(Primitive):
     straight segments). Any orientation; must not self-intersect. Exact (sdPolygon)."""
 
     type_name = "polygon"
-    dim = 2
-    exact = True
-    sized = True
-    default_size = 4
-    min_size = 3
-    size_prefix = "x"
+    dim, exact = 2, True
+    size_prefix, default_size, min_size = "x", 4, 3
 
     @classmethod
     def point_params(cls, i, k):

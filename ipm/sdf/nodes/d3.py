@@ -173,14 +173,9 @@ class Revolution(Primitive):
     evaluated at (|p.xz|, p.y)."""
 
     type_name = "revolution"
-    dim = 3
-    exact = True
-    sized = True
-    default_size = 5
-    min_size = 2
-    size_prefix = "r"
-
+    dim, exact = 3, True
     params = (P("height", 1.0),)
+    size_prefix, default_size, min_size = "r", 5, 2
 
     @classmethod
     def point_params(cls, i, k):

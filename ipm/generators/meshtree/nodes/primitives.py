@@ -42,37 +42,18 @@ class Box(Primitive):
         return 8
 
 
-@register
-class Cylinder(Primitive):
-    """Capped cylinder along Y: ``radius``, full ``height`` (two rings and two cap centers)."""
+class Frustum(Primitive):
+    """Base of ``cylinder`` and ``cone``: two rings of ``segments`` vertices at y = -h/2 and +h/2 and
+    two cap centers. Subclasses say which parameters are the bottom radius, top radius and height."""
 
     linear = True
-    type_name = "cylinder"
-    params = (P("radius", 0.5), P("height", 1.0))
+
+    def radii_height(self, th: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(r_bottom, r_top, height)``, each ``(1,)``, from ``th: (k,)``."""
+        raise NotImplementedError
 
     def verts(self, th, lod):
-        r, h = th.split(1)
-        y = smul(h, 0.5)
-        return _revolved(torch.cat([r, r]), torch.cat([-y, y]), -y, y, lod)
-
-    def faces(self, lod):
-        return mk.loft_faces_np(2, lod.segments, "pole", "pole")
-
-    def n_verts(self, lod):
-        return 2 * lod.segments + 2
-
-
-@register
-class Cone(Primitive):
-    """Capped cone along Y: ``radius_bottom`` at y = -h/2, ``radius_top`` at +h/2 (small, not zero,
-    for a pointed cone: the mesh keeps its top ring)."""
-
-    linear = True
-    type_name = "cone"
-    params = (P("radius_bottom", 0.5), P("radius_top", 0.1), P("height", 1.0))
-
-    def verts(self, th, lod):
-        r0, r1, h = th.split(1)
+        r0, r1, h = self.radii_height(th)
         y = smul(h, 0.5)
         return _revolved(torch.cat([r0, r1]), torch.cat([-y, y]), -y, y, lod)
 
@@ -81,6 +62,30 @@ class Cone(Primitive):
 
     def n_verts(self, lod):
         return 2 * lod.segments + 2
+
+
+@register
+class Cylinder(Frustum):
+    """Capped cylinder along Y: ``radius``, full ``height`` (two rings and two cap centers)."""
+
+    type_name = "cylinder"
+    params = (P("radius", 0.5), P("height", 1.0))
+
+    def radii_height(self, th):
+        r, h = th.split(1)
+        return r, r, h
+
+
+@register
+class Cone(Frustum):
+    """Capped cone along Y: ``radius_bottom`` at y = -h/2, ``radius_top`` at +h/2 (small, not zero,
+    for a pointed cone: the mesh keeps its top ring)."""
+
+    type_name = "cone"
+    params = (P("radius_bottom", 0.5), P("radius_top", 0.1), P("height", 1.0))
+
+    def radii_height(self, th):
+        return tuple(th.split(1))
 
 
 def _meridian(rings: int) -> np.ndarray:
@@ -116,10 +121,7 @@ class Revolve(Primitive):
 
     linear = True
     type_name = "revolve"
-    sized = True
-    default_size = 4
-    min_size = 1
-    size_prefix = "r"
+    size_prefix, default_size, min_size = "r", 4, 1
 
     @classmethod
     def point_params(cls, i, k):
@@ -153,11 +155,8 @@ class Extrude(Primitive):
 
     linear = True
     type_name = "extrude"
-    sized = True
-    default_size = 6
-    min_size = 3
-    size_prefix = "x"
     params = (P("height", 0.5),)
+    size_prefix, default_size, min_size = "x", 6, 3
 
     @classmethod
     def point_params(cls, i, k):
