@@ -200,6 +200,40 @@ def test_a_node_type_is_one_file_in_a_registered_package(tmp_path, monkeypatch):
     assert "tmp_blob" not in NODES
 
 
+CUBE = '''
+from ipm.generators.meshtree.node import register
+from ipm.generators.meshtree.nodes.primitives import Box
+
+
+@register
+class TmpCube(Box):
+    """A throwaway box (tests only)."""
+
+    type_name = "tmp_cube"
+'''
+
+
+def test_a_mesh_node_type_is_one_file_in_a_registered_package(tmp_path, monkeypatch):
+    pkg = tmp_path / "ipm_throwaway_mesh_nodes"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "cube.py").write_text(CUBE)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setattr(MESH_NODES, "packages", [*MESH_NODES.packages, "ipm_throwaway_mesh_nodes"])
+    try:
+        assert "tmp_cube" in MESH_NODES
+        tree = mesh_tree_from_json({"tree": {"node": "merge", "children": [{"node": "tmp_cube"}, {"node": "box"}]}})
+        again = mesh_tree_from_json(json.loads(json.dumps(mesh_tree_to_json(tree))))
+        assert same_tree(again.root, tree.root) and again.root.children[0].type_name == "tmp_cube"
+        a, b = again.mesh(again.theta(), LOW).verts, tree.mesh(tree.theta(), LOW).verts
+        assert torch.equal(a, b) and torch.equal(a[:8], a[8:])
+    finally:
+        MESH_NODES.remove("tmp_cube")
+        for mod in [m for m in sys.modules if m.startswith("ipm_throwaway_mesh_nodes")]:
+            del sys.modules[mod]
+    assert "tmp_cube" not in MESH_NODES
+
+
 # -- the depth limit -------------------------------------------------------------------------------
 
 def nested(depth: int, leaf: dict, wrap: str) -> dict:

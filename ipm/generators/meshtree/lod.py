@@ -31,8 +31,10 @@ LODS = {"low": MeshLod(16, 8), "medium": MeshLod(), "high": MeshLod(64, 32)}
 
 def resolve_lod(lod) -> MeshLod:
     """A :class:`MeshLod` from None (medium), a name (low, medium, high), a dict or a MeshLod."""
-    if lod is None or isinstance(lod, MeshLod):
-        return lod or LODS["medium"]
+    if lod is None:
+        return LODS["medium"]
+    if isinstance(lod, MeshLod):
+        return lod
     if isinstance(lod, str) and lod in LODS:
         return LODS[lod]
     if isinstance(lod, Mapping):
