@@ -9,7 +9,7 @@ import torch
 
 from ipm import sdf
 from ipm.sdf.meshing import check_resolution, grid_shape, mesh_sdf
-from ipm.sdf.nodes import Tree
+from ipm.sdf.tree import Tree
 
 m3d = pytest.importorskip("manifold3d")
 SEG = 256

@@ -95,7 +95,7 @@ def test_clockwise_extrusions_are_still_outward():
 def test_node_validation_errors_name_the_problem():
     with pytest.raises(ValueError, match=r"node root/0 \(box\): unknown parameter 'size'"):
         mesh_node_from_dict({"node": "translate", "children": [{"node": "box", "params": {"size": 1}}]})
-    with pytest.raises(ValueError, match=r"node root \(translate\): translate: expected 1 child, got 0"):
+    with pytest.raises(ValueError, match=r"node root \(translate\): expected 1 child, got 0"):
         mesh_node_from_dict({"node": "translate"})
     with pytest.raises(ValueError, match="expected the profile to end above its start"):
         mesh_node_from_dict({"node": "revolve", "size": 2, "params": {"r0": 1, "y0": 1, "r1": 1, "y1": 0}})

@@ -11,7 +11,8 @@ import torch
 from ipm import sdf
 from ipm.jacobian import check_sdf_jacobian
 from ipm.sdf.complex import eval_expr, load_library, macro_type
-from ipm.sdf.nodes import Tree, all_node_types
+from ipm.sdf.node import all_node_types
+from ipm.sdf.tree import Tree
 
 SHIPPED = ["chair", "table", "mug", "shelf", "arched_window", "rotate_about", "rotate_about2d"]
 

@@ -9,7 +9,8 @@ import torch
 
 from ipm import sdf
 from ipm.jacobian import check_sdf_jacobian, sdf_jacobian
-from ipm.sdf.nodes import Node, Tree, all_node_types
+from ipm.sdf.node import Node, all_node_types
+from ipm.sdf.tree import Tree
 
 TYPES = all_node_types()
 ANGLE_WORDS = ("angle", "tilt", "azimuth")

@@ -10,7 +10,7 @@ import torch
 
 from ipm import sdf
 from ipm.generators.sdftree import tree_presets
-from ipm.sdf.nodes import Tree, from_flat, load_tree, node_from_dict, node_to_dict, to_flat, tree_from_json
+from ipm.sdf.tree import Tree, from_flat, load_tree, node_from_dict, node_to_dict, to_flat, tree_from_json
 
 
 def classic_csg():

@@ -28,10 +28,10 @@ def _generators() -> list[dict]:
 
 
 def _nodes() -> list[dict]:
-    from ipm.sdf.nodes import all_node_types
+    from ipm.sdf.node import NODES
 
     out = []
-    for name, cls in sorted(all_node_types().items()):
+    for name, cls in NODES.items():
         doc = (cls.__doc__ or "").strip().splitlines()
         out.append({
             "name": name, "dim": cls.dim or "2|3", "arity": "2+" if cls.arity is None else cls.arity,
@@ -69,9 +69,7 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"ipm list: expected one of {', '.join(WHAT)}, got {what!r}")
         if library:
             from ipm.sdf.complex import load_library
-            from ipm.sdf.nodes import _load_builtin_nodes
 
-            _load_builtin_nodes()
             load_library([str(p) for p in library])
         rows = {"generators": _generators, "nodes": _nodes, "presets": _presets}[what]()
         if json_out:

@@ -63,7 +63,7 @@ def convert_sdftree(mesh, *, progress: Progress | None = None, seed: int = 0, **
     """
     from ipm.convert.bsp import fit_bsp
     from ipm.generators.sdftree import SdfTreeGenerator
-    from ipm.sdf.nodes import tree_from_json
+    from ipm.sdf.tree import tree_from_json
 
     t0 = time.perf_counter()
     bsp = fit_bsp(mesh, progress=progress, seed=seed, **bsp_options)

@@ -112,13 +112,13 @@ def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
         return FILE_LOADERS[kind](name)
     if name in tree_presets():
         return SdfTreeGenerator.from_preset(name)
-    from ipm.generators.meshtree import TREE_PRESETS, MeshTreeGenerator
+    from ipm.generators.meshtree import MeshTreeGenerator, mesh_tree_presets
 
-    if name in TREE_PRESETS:
+    if name in mesh_tree_presets():
         return MeshTreeGenerator.from_preset(name)
     raise InputError(f"unknown generator {name!r}; registered: {', '.join(sorted(GENERATORS))}; "
                      f"tree presets: {', '.join(sorted(tree_presets()))}; mesh tree presets: "
-                     f"{', '.join(sorted(TREE_PRESETS))}; or pass a generator file (.json)")
+                     f"{', '.join(sorted(mesh_tree_presets()))}; or pass a generator file (.json)")
 
 
 def _declared_generator(path: str) -> str | None:

@@ -16,7 +16,7 @@ import torch
 from ipm.generators.base import Generator, register_generator
 from ipm.params import Value
 from ipm.sdf.meshing import mesh_sdf
-from ipm.sdf.nodes import Tree, load_tree, tree_from_json
+from ipm.sdf.tree import Tree, load_tree, tree_from_json
 from ipm.types import TriMesh
 
 PRESET_DIR = Path(__file__).resolve().parent.parent / "sdf" / "presets"
@@ -69,7 +69,7 @@ class SdfTreeGenerator(Generator):
         return mesh_sdf(lambda p: tree.sdf(None, p), lo, hi, resolution or 128)
 
     def metadata(self, values: Mapping[str, Value]) -> dict:
-        from ipm.sdf.nodes import tree_to_json
+        from ipm.sdf.tree import tree_to_json
 
         return {"generator": self.name, "params": dict(values),
                 "tree": tree_to_json(self.tree.with_values(values))["tree"]}

@@ -18,7 +18,6 @@ Shipped macros live in ``ipm/sdf/library``; users add theirs with ``--library DI
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -27,8 +26,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.params import Param
-from ipm.sdf.nodes import NODE_TYPES, Node, SlotNode, check_children, node_from_dict, register
+from ipm.sdf.node import NODES, Node, SlotNode, check_children
+from ipm.sdf.tree import node_from_dict
+from ipm.tree import read_json
 
 log = logging.getLogger(__name__)
 
@@ -39,44 +41,45 @@ OPS = {"const": (1, 1), "neg": (1, 1), "add": (2, None), "sub": (2, 2), "mul": (
 
 def _check_expr(e: object, names: set[str], where: str) -> None:
     if isinstance(e, bool):
-        raise ValueError(f"{where}: expected a number, a name or an operation, got {e!r}")
+        raise InputError(f"{where}: expected a number, a name or an operation, got {e!r}")
     if isinstance(e, (int, float)):
         return
     if isinstance(e, str):
         if e not in names:
-            raise ValueError(f"{where}: unknown name {e!r}; known: {', '.join(sorted(names))}")
+            raise InputError(f"{where}: unknown name {e!r}; known: {', '.join(sorted(names))}")
         return
     if isinstance(e, Mapping) and len(e) == 1:
         (op, args), = e.items()
         if op not in OPS:
-            raise ValueError(f"{where}: unknown operation {op!r}; allowed: {', '.join(OPS)}")
+            raise InputError(f"{where}: unknown operation {op!r}; allowed: {', '.join(OPS)}")
         args = args if isinstance(args, list) else [args]
         lo, hi = OPS[op]
         if len(args) < lo or (hi is not None and len(args) > hi):
-            raise ValueError(f"{where}: {op} takes {lo}{'' if hi == lo else '+' if hi is None else '-' + str(hi)} "
+            raise InputError(f"{where}: {op} takes {lo}{'' if hi == lo else '+' if hi is None else '-' + str(hi)} "
                              f"arguments, got {len(args)}")
         if op == "const" and not isinstance(args[0], (int, float)):
-            raise ValueError(f"{where}: const takes a number")
+            raise InputError(f"{where}: expected a number after const, got {args[0]!r}")
         for a in args:
             _check_expr(a, names, where)
         return
-    raise ValueError(f"{where}: expected a number, a name or an operation, got {e!r}")
+    raise InputError(f"{where}: expected a number, a name or an operation, got {e!r}")
 
 
-def _minimum(a, b):
-    if torch.is_tensor(a) or torch.is_tensor(b):
-        ref = a if torch.is_tensor(a) else b
-        return torch.minimum(torch.as_tensor(a, dtype=ref.dtype, device=ref.device),
-                             torch.as_tensor(b, dtype=ref.dtype, device=ref.device))
-    return min(a, b)
+def _elementwise(torch_fn, py_fn):
+    """A binary min/max that takes floats or 0-dim tensors (tensors win, in the tensor's dtype)."""
+
+    def f(a, b):
+        if torch.is_tensor(a) or torch.is_tensor(b):
+            ref = a if torch.is_tensor(a) else b
+            return torch_fn(torch.as_tensor(a, dtype=ref.dtype, device=ref.device),
+                            torch.as_tensor(b, dtype=ref.dtype, device=ref.device))
+        return py_fn(a, b)
+
+    return f
 
 
-def _maximum(a, b):
-    if torch.is_tensor(a) or torch.is_tensor(b):
-        ref = a if torch.is_tensor(a) else b
-        return torch.maximum(torch.as_tensor(a, dtype=ref.dtype, device=ref.device),
-                             torch.as_tensor(b, dtype=ref.dtype, device=ref.device))
-    return max(a, b)
+_minimum = _elementwise(torch.minimum, min)
+_maximum = _elementwise(torch.maximum, max)
 
 
 def eval_expr(e, env: Mapping[str, object]):
@@ -201,17 +204,17 @@ def _slots(node: Node) -> list[SlotNode]:
 
 
 def macro_type(spec: Mapping, source: str = "<memory>") -> type[Node]:
-    """Build (not register) a node type from a macro definition; ``ValueError`` says what is wrong."""
+    """Build (not register) a node type from a macro definition; :class:`InputError` says what is wrong."""
     where = f"macro file {source}"
     for key in ("name", "params", "tree"):
         if key not in spec:
-            raise ValueError(f"{where}: missing the {key!r} field")
+            raise InputError(f"{where}: missing the {key!r} field")
     name = str(spec["name"])
     try:
         params = tuple(Param(str(p["name"]), p["default"], p["lo"], p["hi"], p.get("kind", "float"),
                              p.get("doc", "")) for p in spec["params"])
-    except (KeyError, TypeError) as e:
-        raise ValueError(f"{where}: each parameter needs name, default, lo, hi (problem: {e})") from None
+    except (KeyError, TypeError, ValueError) as e:
+        raise InputError(f"{where}: expected parameters with name, default, lo, hi, got a problem: {e}") from None
     names = {p.name for p in params}
     defs = []
     for dname, e in dict(spec.get("defs", {})).items():
@@ -223,7 +226,7 @@ def macro_type(spec: Mapping, source: str = "<memory>") -> type[Node]:
     try:
         template = node_from_dict(tmpl_dict, allow_slots=True)
     except ValueError as e:
-        raise ValueError(f"{where}: {e}") from None
+        raise InputError(f"{where}: {e}") from None
     # Resolve parameter names of expression-valued entries to indices, in pre-order.
     flat_nodes = []
 
@@ -242,25 +245,25 @@ def macro_type(spec: Mapping, source: str = "<memory>") -> type[Node]:
         resolved = []
         for k, e in ne:
             if k not in idx:
-                raise ValueError(f"{where}: node {n.type_name} has no parameter {k!r}; "
+                raise InputError(f"{where}: node {n.type_name} has no parameter {k!r}; "
                                  f"valid: {', '.join(idx)}")
             if not n.param_defs()[idx[k]].continuous and _uses_continuous(e, params, defs):
-                raise ValueError(f"{where}: discrete parameter {n.type_name}.{k} depends on a "
+                raise InputError(f"{where}: discrete parameter {n.type_name}.{k} depends on a "
                                  "continuous parameter")
             resolved.append((idx[k], e))
         exprs.append(tuple(resolved))
     slots = _slots(template)
     arity = len({s.size for s in slots})
     if sorted({s.size for s in slots}) != list(range(arity)):
-        raise ValueError(f"{where}: slots must be numbered 0 .. k-1")
+        raise InputError(f"{where}: expected slots numbered 0 .. k-1, got {sorted({s.size for s in slots})}")
     dim = int(spec.get("dim", template.out_dim))
     if dim != template.out_dim:
-        raise ValueError(f"{where}: declared dim {dim} but the tree is {template.out_dim}D")
+        raise InputError(f"{where}: expected a {dim}D tree (the declared dim), got a {template.out_dim}D tree")
     attrs = {
         "type_name": name, "dim": dim, "arity": arity,
         "child_dim": (slots[0].out_dim if slots else None), "exact": bool(spec.get("exact", False)),
         "params": params, "template": template, "exprs": tuple(exprs), "defs": tuple(defs),
-        "source": source, "__doc__": spec.get("doc", f"Macro node {name} from {source}."),
+        "source": source, "spec": dict(spec), "__doc__": spec.get("doc", f"Macro node {name} from {source}."),
     }
     cls = type(f"Macro_{name}", (MacroNode,), attrs)
     return dataclass(frozen=True, eq=False)(cls)
@@ -282,42 +285,59 @@ def _uses_continuous(e, params, defs) -> bool:
 
 
 def load_library(dirs: list[Path | str] | None = None) -> list[str]:
-    """Register every ``*.json`` macro in the shipped library and in ``dirs``; return their names.
+    """Register every ``*.json`` macro in the shipped library and in ``dirs``; return the new names.
 
-    Files may use macros from other files: loading repeats until no more files can be added.
+    Files may use macros from other files: loading repeats until no more files can be added. A file
+    that repeats a registered macro to the letter (a copy of a shipped one) is accepted; a different
+    definition under a registered name is an :class:`InputError` naming the file and the node.
     """
     paths = sorted(LIBRARY_DIR.glob("*.json"))
     for d in dirs or []:
         d = Path(d)
         if not d.is_dir():
-            raise ValueError(f"macro library folder not found: {d}")
+            raise InputError(f"expected a macro library folder, got {d} (not found)")
         paths += sorted(d.glob("*.json"))
+    specs = {path: _read_macro(path) for path in paths}
     pending, added, last_error = list(paths), [], {}
     while pending:
         progress = False
         for path in list(pending):
-            try:
-                spec = json.loads(path.read_text())
-            except json.JSONDecodeError as e:
-                raise ValueError(f"macro file {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
-            if spec.get("name") in NODE_TYPES and getattr(NODE_TYPES[spec["name"]], "source", None) == str(path):
+            if _known(specs[path], path):
                 pending.remove(path)
                 progress = True
                 continue
             try:
-                cls = macro_type(spec, str(path))
+                cls = macro_type(specs[path], str(path))
             except ValueError as e:
                 last_error[path] = str(e)
                 continue
-            if cls.type_name in NODE_TYPES:
-                raise ValueError(f"macro file {path}: node type {cls.type_name!r} already exists")
-            register(cls)
+            NODES.add(cls.type_name, cls)
             added.append(cls.type_name)
             pending.remove(path)
             progress = True
         if not progress:
-            raise ValueError(last_error[pending[0]])
+            raise InputError(last_error[pending[0]])
     return added
+
+
+def _read_macro(path: Path) -> dict:
+    spec = read_json(path, "macro file")
+    if not isinstance(spec, dict):
+        raise InputError(f"macro file {path}: expected a JSON object, got {type(spec).__name__}")
+    return spec
+
+
+def _known(spec: Mapping, path: Path) -> bool:
+    """True if ``spec`` is already registered as it is; InputError if its name is taken by another node."""
+    name = spec.get("name")
+    if not isinstance(name, str) or name not in NODES:
+        return False
+    old = NODES.get(name)
+    if getattr(old, "spec", None) == spec:
+        return True
+    where = getattr(old, "source", None) or f"the built-in node {old.__module__}.{old.__qualname__}"
+    raise InputError(f"macro file {path}: expected a new node name or the same definition as {where}, "
+                     f"got a different definition of node {name!r}")
 
 
 __all__ = ["macro_type", "load_library", "eval_expr", "MacroNode", "check_children"]

@@ -17,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 import torch
 
+from ipm.errors import InputError
 from ipm.types import TriMesh
 
 log = logging.getLogger(__name__)
@@ -36,11 +37,11 @@ def grid_shape(lo: np.ndarray, hi: np.ndarray, resolution: int, pad: int = 2):
 
 def check_resolution(resolution: int, lo: np.ndarray, hi: np.ndarray) -> None:
     if not isinstance(resolution, (int, np.integer)) or resolution < 8:
-        raise ValueError(f"resolution: expected an integer >= 8, got {resolution}")
+        raise InputError(f"resolution: expected an integer >= 8, got {resolution}")
     _, _, shape = grid_shape(lo, hi, resolution)
     n = int(np.prod(shape, dtype=np.int64))
     if n > MAX_SAMPLES:
-        raise ValueError(f"resolution {resolution} needs {n:,} samples, more than the {MAX_SAMPLES:,} "
+        raise InputError(f"resolution {resolution} needs {n:,} samples, more than the {MAX_SAMPLES:,} "
                          f"that fit in memory here; use a resolution up to about "
                          f"{int(resolution * (MAX_SAMPLES / n) ** (1 / 3))}")
 
