@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import re
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -34,15 +35,32 @@ def read_text(path: str | Path, what: str = "file") -> str:
         raise InputError(f"{what} {path}: expected UTF-8 text, got binary data") from None
 
 
-def read_json(path: str | Path, what: str = "JSON file"):
-    """The parsed JSON of ``path`` (any JSON value); errors name the file, line and column."""
+def read_json(path: str | Path, what: str = "JSON file", *, max_nesting: int = 200, too_deep: str = ""):
+    """The parsed JSON of ``path`` (any JSON value); errors name the file, line and column. Text whose
+    objects and arrays nest deeper than ``max_nesting`` is refused before the parser recurses into it
+    (``too_deep`` says what the limit means to the caller)."""
     text = read_text(path, what)
+    nesting = json_nesting(text)
+    if nesting > max_nesting:
+        raise InputError(f"{what} {path}: {too_deep or f'expected JSON nested at most {max_nesting} deep'}, "
+                         f"got JSON nested {nesting} deep")
     try:
         return json.loads(text)
     except json.JSONDecodeError as e:
         raise InputError(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno}, column {e.colno}") from None
-    except RecursionError:
-        raise InputError(f"{what} {path}: nested too deeply") from None
+
+
+def json_nesting(text: str) -> int:
+    """How deeply objects and arrays nest in JSON ``text`` (strings skipped), without parsing it."""
+    depth = deepest = 0
+    for m in _BRACKETS.finditer(_STRINGS.sub('""', text)):
+        depth += 1 if m.group() in "[{" else -1
+        deepest = max(deepest, depth)
+    return deepest
+
+
+_STRINGS = re.compile(r'"(?:\\.|[^"\\])*"')
+_BRACKETS = re.compile(r"[\[\]{}]")
 
 
 def _umask() -> int:

@@ -44,9 +44,14 @@ def _nodes() -> list[dict]:
 
 def _presets() -> list[dict]:
     from ipm.generators import all_generators
-    from ipm.generators.sdftree import tree_presets
+    from ipm.generators.base import PRESET_FAMILIES
 
-    out = [{"generator": "sdftree", "preset": name, "use": f"ipm generate {name}"} for name in tree_presets()]
+    out, seen = [], set()
+    for family in sorted((f for _, f in PRESET_FAMILIES.items()), key=lambda f: f.order):
+        for name in family.names():
+            if name not in seen:  # the first family wins a shared name, as in get_generator
+                seen.add(name)
+                out.append({"generator": family.load(name).name, "preset": name, "use": f"ipm generate {name}"})
     for gname, factory in sorted(all_generators().items()):
         for p in sorted(factory().presets):
             out.append({"generator": gname, "preset": p, "use": f"ipm generate {gname} --preset {p}"})

@@ -10,18 +10,24 @@ parameters) and whose faces depend only on the discrete values and the level of 
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Literal
 
 import torch
 
 from ipm.errors import InputError
 from ipm.params import ParamSpec, Value
+from ipm.registry import Registry
 from ipm.types import TriMesh
 
-GENERATORS: dict[str, Callable[[], Generator]] = {}
-# readers of generator files, by the file's ``"generator"`` field (SDF tree files may omit it)
-FILE_LOADERS: dict[str, Callable[[str], Generator]] = {}
+# Generators by name (a factory each), found in the modules of this package
+GENERATORS: Registry[Callable[[], Generator]] = Registry("generator", packages=["ipm.generators"])
+# Readers of generator files, by the file's ``"generator"`` field (SDF tree files may omit it: "sdftree")
+FILE_FORMATS: Registry[Callable[[str], Generator]] = Registry("generator file format", packages=["ipm.generators"])
+# Families of named shapes (tree presets): each gives ``names()`` and ``load(name) -> Generator``
+PRESET_FAMILIES: Registry[PresetFamily] = Registry("preset family", packages=["ipm.generators"])
 
 
 def register_generator(name: str, *, from_file: Callable[[str], Generator] | None = None):
@@ -31,14 +37,21 @@ def register_generator(name: str, *, from_file: Callable[[str], Generator] | Non
     shape, a tree), so that ``get_generator(path)`` and ``ipm generate path`` load it."""
 
     def deco(factory):
-        if name in GENERATORS:
-            raise InputError(f"generator {name!r} is registered twice")
-        GENERATORS[name] = factory
+        GENERATORS.add(name, factory)
         if from_file is not None:
-            FILE_LOADERS[name] = from_file
+            FILE_FORMATS.add(name, from_file)
         return factory
 
     return deco
+
+
+@dataclass(frozen=True)
+class PresetFamily:
+    """Named shapes a module offers by name alone (``ipm generate table``): the shipped trees."""
+
+    names: Callable[[], Iterable[str]]
+    load: Callable[[str], Generator]
+    order: int = 0      # a name two families offer goes to the lower order (SDF trees before mesh trees)
 
 
 class Generator(ABC):
@@ -89,69 +102,43 @@ class Generator(ABC):
 
 
 def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
-    """A generator by registry name, or an SDF tree generator from a ``.json`` tree file or a shipped
-    tree preset name. ``ValueError`` lists what is available."""
-    _load_builtin_generators()
+    """A generator by registry name, a generator file (``.json``; its ``"generator"`` field picks the
+    reader, SDF trees may omit it), or a named shape of a preset family (the shipped trees).
+    :class:`InputError` lists what is available."""
     if library:
         from ipm.sdf.complex import load_library
 
         load_library(library)
     if name in GENERATORS:
         return GENERATORS[name]()
-    from pathlib import Path
-
-    from ipm.generators.sdftree import SdfTreeGenerator, tree_presets
-
     if name.endswith(".json") or Path(name).is_file():
-        kind = _declared_generator(name)
-        if kind is None or kind == "sdftree":
-            return SdfTreeGenerator.from_file(name)
-        if kind not in FILE_LOADERS:
+        kind = _declared_generator(name) or "sdftree"
+        if kind not in FILE_FORMATS:
             raise InputError(f"{name}: declares generator {kind!r}, which has no file format; files can "
-                             f"hold: sdftree, {', '.join(sorted(FILE_LOADERS))}")
-        return FILE_LOADERS[kind](name)
-    if name in tree_presets():
-        return SdfTreeGenerator.from_preset(name)
-    from ipm.generators.meshtree import MeshTreeGenerator, mesh_tree_presets
-
-    if name in mesh_tree_presets():
-        return MeshTreeGenerator.from_preset(name)
-    raise InputError(f"unknown generator {name!r}; registered: {', '.join(sorted(GENERATORS))}; "
-                     f"tree presets: {', '.join(sorted(tree_presets()))}; mesh tree presets: "
-                     f"{', '.join(sorted(mesh_tree_presets()))}; or pass a generator file (.json)")
+                             f"hold: {', '.join(FILE_FORMATS.names())}")
+        return FILE_FORMATS[kind](name)
+    families = sorted((f for _, f in PRESET_FAMILIES.items()), key=lambda f: f.order)
+    for family in families:
+        if name in family.names():
+            return family.load(name)
+    shapes = sorted({n for f in families for n in f.names()})
+    raise InputError(f"unknown generator {name!r}; registered: {', '.join(GENERATORS.names())}; "
+                     f"named shapes: {', '.join(shapes)}; or pass a generator file (.json)")
 
 
 def _declared_generator(path: str) -> str | None:
     """The ``"generator"`` field of a JSON file (None if absent: an SDF tree); an unreadable file is an
     :class:`InputError` naming it."""
-    from ipm.files import read_json
+    from ipm.tree import read_json  # a generator file may be a deep tree: the tree's depth limit applies
 
     data = read_json(path, "generator file")
     kind = data.get("generator") if isinstance(data, dict) else None
     return kind if isinstance(kind, str) else None
 
 
-_LOADED = False
-
-
-def _load_builtin_generators() -> None:
-    global _LOADED
-    if _LOADED:
-        return
-    _LOADED = True
-    import importlib
-    import pkgutil
-
-    import ipm.generators as pkg
-
-    for mod in pkgutil.iter_modules(pkg.__path__):
-        if mod.name != "base":
-            importlib.import_module(f"ipm.generators.{mod.name}")
-
-
 def all_generators() -> dict[str, Callable[[], Generator]]:
-    _load_builtin_generators()
-    return dict(GENERATORS)
+    """Every registered generator factory by name."""
+    return dict(GENERATORS.items())
 
 
 class ValuesField(ABC):

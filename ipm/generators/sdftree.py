@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from ipm.generators.base import Generator, register_generator
+from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, register_generator
 from ipm.params import Value
 from ipm.sdf.meshing import mesh_sdf
 from ipm.sdf.tree import Tree, load_tree, tree_from_json
@@ -75,7 +75,10 @@ class SdfTreeGenerator(Generator):
                 "tree": tree_to_json(self.tree.with_values(values))["tree"]}
 
 
-@register_generator("sdftree")
+@register_generator("sdftree", from_file=SdfTreeGenerator.from_file)
 def _default_tree() -> SdfTreeGenerator:
     """``sdftree`` alone is the classic CSG example; pass a tree file or preset for others."""
     return SdfTreeGenerator.from_preset("csg")
+
+
+PRESET_FAMILIES.add("sdf trees", PresetFamily(tree_presets, SdfTreeGenerator.from_preset))

@@ -15,9 +15,9 @@ Trees are at most :data:`MAX_DEPTH` levels deep: deeper input is refused with an
 :class:`~ipm.errors.InputError` before anything recurses (evaluation nests a few Python frames per level).
 """
 
-from ipm.tree.files import check_depth, from_flat, json_nesting, node_from_dict, read_json, to_flat
+from ipm.tree.files import check_depth, from_flat, node_from_dict, read_json, to_flat
 from ipm.tree.node import TreeNode
 from ipm.tree.walk import MAX_DEPTH, Visit, flat_spec, node_label, preorder, rebuild, same_tree
 
-__all__ = ["MAX_DEPTH", "TreeNode", "Visit", "check_depth", "flat_spec", "from_flat", "json_nesting",
-           "node_from_dict", "node_label", "preorder", "read_json", "rebuild", "same_tree", "to_flat"]
+__all__ = ["MAX_DEPTH", "TreeNode", "Visit", "check_depth", "flat_spec", "from_flat", "node_from_dict",
+           "node_label", "preorder", "read_json", "rebuild", "same_tree", "to_flat"]

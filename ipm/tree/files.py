@@ -3,11 +3,10 @@ and the flat form (pre-order ``structure`` tokens and one ``params`` list), read
 
 from __future__ import annotations
 
-import json
-import re
 from collections.abc import Callable, Mapping
 from pathlib import Path
 
+from ipm import files
 from ipm.errors import InputError
 from ipm.registry import Registry
 from ipm.tree.node import TreeNode
@@ -133,36 +132,12 @@ def from_flat(data: Mapping, registry: Registry) -> TreeNode:
     return root
 
 
-def json_nesting(text: str) -> int:
-    """How deeply objects and arrays nest in JSON ``text`` (strings skipped), without parsing it."""
-    depth = deepest = 0
-    for m in _BRACKETS.finditer(_STRINGS.sub('""', text)):
-        depth += 1 if m.group() in "[{" else -1
-        deepest = max(deepest, depth)
-    return deepest
-
-
-_STRINGS = re.compile(r'"(?:\\.|[^"\\])*"')
-_BRACKETS = re.compile(r"[\[\]{}]")
-
-
 def read_json(path: str | Path, what: str) -> object:
-    """A JSON file's data; :class:`InputError` names ``what`` (e.g. "tree file") and the problem.
-
-    Files nesting deeper than a tree of ``MAX_DEPTH`` levels can (an object and a list per level) are
-    refused before the JSON parser recurses into them."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{what} not found: {path}")
-    text = path.read_text()
-    nesting = json_nesting(text)
-    if nesting > 2 * MAX_DEPTH + 4:
-        raise InputError(f"{what} {path}: expected a tree at most {MAX_DEPTH} levels deep (the limit), "
-                         f"got JSON nested {nesting} deep")
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as e:
-        raise InputError(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno}") from None
+    """A JSON file's data (:func:`ipm.files.read_json`); files nesting deeper than a tree of
+    ``MAX_DEPTH`` levels can (an object and a list per level) are refused before the JSON parser
+    recurses into them."""
+    return files.read_json(path, what, max_nesting=2 * MAX_DEPTH + 4,
+                           too_deep=f"expected a tree at most {MAX_DEPTH} levels deep (the limit)")
 
 
-__all__ = ["FIELDS", "check_depth", "from_flat", "json_nesting", "node_from_dict", "read_json", "to_flat"]
+__all__ = ["FIELDS", "check_depth", "from_flat", "node_from_dict", "read_json", "to_flat"]

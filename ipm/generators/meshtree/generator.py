@@ -11,7 +11,7 @@ import torch
 
 from ipm import tree as T
 from ipm.errors import InputError
-from ipm.generators.base import Generator, register_generator
+from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, register_generator
 from ipm.generators.meshtree.tree import MeshTree, load_mesh_tree, mesh_tree_from_json, mesh_tree_to_json
 from ipm.params import Value
 from ipm.types import TriMesh
@@ -83,3 +83,6 @@ class MeshTreeGenerator(Generator):
 def _meshtree() -> MeshTreeGenerator:
     """``meshtree`` alone is the table; other trees: :meth:`MeshTreeGenerator.from_preset` / ``from_file``."""
     return MeshTreeGenerator.from_preset("table")
+
+
+PRESET_FAMILIES.add("mesh trees", PresetFamily(mesh_tree_presets, MeshTreeGenerator.from_preset, order=1))
