@@ -51,7 +51,7 @@ def _presets() -> list[dict]:
         for name in family.names():
             if name not in seen:  # the first family wins a shared name, as in get_generator
                 seen.add(name)
-                out.append({"generator": family.load(name).name, "preset": name, "use": f"ipm generate {name}"})
+                out.append({"generator": family.generator, "preset": name, "use": f"ipm generate {name}"})
     for gname, factory in sorted(all_generators().items()):
         for p in sorted(factory().presets):
             out.append({"generator": gname, "preset": p, "use": f"ipm generate {gname} --preset {p}"})

@@ -49,6 +49,7 @@ def register_generator(name: str, *, from_file: Callable[[str], Generator] | Non
 class PresetFamily:
     """Named shapes a module offers by name alone (``ipm generate table``): the shipped trees."""
 
+    generator: str     # the generator that draws them
     names: Callable[[], Iterable[str]]
     load: Callable[[str], Generator]
     order: int = 0      # a name two families offer goes to the lower order (SDF trees before mesh trees)

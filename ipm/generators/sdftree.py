@@ -81,4 +81,4 @@ def _default_tree() -> SdfTreeGenerator:
     return SdfTreeGenerator.from_preset("csg")
 
 
-PRESET_FAMILIES.add("sdf trees", PresetFamily(tree_presets, SdfTreeGenerator.from_preset))
+PRESET_FAMILIES.add("sdf trees", PresetFamily("sdftree", tree_presets, SdfTreeGenerator.from_preset))

@@ -85,4 +85,4 @@ def _meshtree() -> MeshTreeGenerator:
     return MeshTreeGenerator.from_preset("table")
 
 
-PRESET_FAMILIES.add("mesh trees", PresetFamily(mesh_tree_presets, MeshTreeGenerator.from_preset, order=1))
+PRESET_FAMILIES.add("mesh trees", PresetFamily("meshtree", mesh_tree_presets, MeshTreeGenerator.from_preset, order=1))
