@@ -35,6 +35,7 @@ def small_experiment(tmp_path: Path, views=(1, 2), fits: bool = True) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
     from ipm.cli import main
 
@@ -95,6 +96,7 @@ def test_existing_rows_without_resume_is_an_error(tmp_path):
         run_experiment(exp, out)
 
 
+@pytest.mark.slow
 def test_dask_local_cluster_gives_the_same_rows(tmp_path):
     import dask.distributed as distributed
 

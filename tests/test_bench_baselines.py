@@ -221,6 +221,7 @@ def test_fit_views_box_filters_and_keeps_pixel_centers():
 
 # -- recovery ----------------------------------------------------------------------------------------
 
+@pytest.mark.slow
 def test_sdf_grid_recovers_a_box_from_four_views(box):
     # measured: 0.862 after one step (the visual hull, smoothed), 0.933 after 60
     mesh, task = box
@@ -245,6 +246,7 @@ def test_mesh_deform_recovers_a_box_from_four_views(box):
 
 # -- the universal representations (ipm/bench/methods/bsp.py, perturb.py) ------------------------------
 
+@pytest.mark.slow
 def test_bsp_and_perturb_bench_methods_convert_the_visual_hull(box):
     """Both convert the visual hull of the views (in its normalized frame) and report the size of what
     they built. Measured 3D IoU against the normalized hull on this box from 4 views: bsp 0.86 (16 planes,

@@ -180,6 +180,7 @@ def test_staged_directory_leaves_nothing_on_error(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["o"]
 
 
+@pytest.mark.slow
 def test_subprocess(tmp_path):
     out = tmp_path / "masks"
     mug = real_path(MUG)

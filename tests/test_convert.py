@@ -81,6 +81,7 @@ def test_bsp_and_sdftree_round_trip(tmp_path, meshes, capsys, one_thread, to):
         assert len(a.faces) == 12 and len(b.faces) == 12        # the exact polytope: a box is 12 triangles
 
 
+@pytest.mark.slow
 def test_fit_bsp_on_a_mesh_and_on_masks(tmp_path, meshes, capsys, one_thread):
     code, stdout, err = run(["fit", "bsp", "--target-mesh", meshes / "box.obj", "--budget", "6", "--discrete", "none",
                              "-o", tmp_path / "run_mesh", "--json"], capsys)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from ipm.generators import get_generator
@@ -29,6 +30,7 @@ def mask_target(mesh: TriMesh, cams) -> MaskTarget:
     return MaskTarget(masks, [c.to(torch.float32) for c in cams])
 
 
+@pytest.mark.slow
 def test_teacup_start_recovers_a_mug_from_two_views():
     """Masks of the dishes mug from 2 views; a memetic fit from the teacup preset keeps the handle and
     reaches exact mask IoU >= 0.98 on both views and >= 0.95 on 8 held-out views."""
@@ -46,6 +48,7 @@ def test_teacup_start_recovers_a_mug_from_two_views():
     assert np.mean(held) >= 0.95, held
 
 
+@pytest.mark.slow
 def test_unknown_camera_single_view(tmp_path):
     """One view of a cup at an elevation and FOV the fit is not told (no cameras.json): ``camera="fit"``
     recovers elevation, distance and FOV with the shape and reaches exact mask IoU >= 0.97."""
@@ -62,6 +65,7 @@ def test_unknown_camera_single_view(tmp_path):
     assert res.scores["iou_mean"] >= 0.97, res.scores
 
 
+@pytest.mark.slow
 def test_dishes_fit_to_the_real_mug_scan_by_chamfer():
     """Issue #5: the dishes generator fitted to the ocrtoc mug scan (Z up, normalized) by Chamfer from
     its ``mug`` preset reaches F-score >= 0.8 at tau = 0.02 and >= 0.98 at tau = 0.05 (exact
@@ -83,6 +87,7 @@ def test_dishes_fit_to_the_real_mug_scan_by_chamfer():
     assert f2 >= 0.8 and f5 >= 0.98, (f2, f5)
 
 
+@pytest.mark.slow
 def test_handle_found_from_a_start_without_one():
     """A tall mug with its handle in view, fitted from the generator's defaults (no handle: a body of
     revolution, which looks the same from every yaw). ``enumerate`` must switch the handle on: the pose

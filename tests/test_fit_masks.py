@@ -56,6 +56,7 @@ def make_target(values, views=2, size=64):
     return MaskTarget(masks, cams)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["enumerate", "memetic"])
 def test_discrete_count_recovered(strategy):
     target = make_target({"width": 1.2, "depth": 0.5, "height": 0.4, "count": 3})

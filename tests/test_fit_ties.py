@@ -121,6 +121,7 @@ def test_the_rule_sets_back_only_what_no_view_shows(azimuth, tie):
     assert (d["has_handle"], tied) == ((0, ("has_handle",)) if tie else (1, ()))
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("strategy", ["enumerate", "memetic"])
 @pytest.mark.parametrize("preset, handle", [("mug", 1), ("glass", 0)])
 def test_a_hidden_handle_keeps_the_presets_value(preset, handle, strategy):
