@@ -30,11 +30,10 @@ def run(args, capsys):
     return e.value.code, out, err
 
 
-def _nested_tree(depth: int) -> dict:
-    node: dict = {"node": "sphere", "params": {"radius": 0.5}}
-    for _ in range(depth):
-        node = {"node": "translate", "params": {"x": 0.0}, "children": [node]}
-    return {"tree": node}
+def _nested_tree(depth: int) -> str:
+    """The JSON text of a tree ``depth`` translations deep (built as text: json.dumps would recurse)."""
+    head = '{"node": "translate", "params": {"x": 0.0}, "children": [' * depth
+    return '{"tree": ' + head + '{"node": "sphere", "params": {"radius": 0.5}}' + "]}" * depth + "}"
 
 
 def _cameras(width: int, height: int, n: int = 1) -> list[dict]:
