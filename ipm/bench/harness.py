@@ -297,17 +297,17 @@ def _executor(workers: int, scheduler: str | None):
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
     os.environ["IPM_BENCH_WORKER"] = "1"
-    with ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent, initargs=(os.getpid(),)) as pool:
-        def submit_pool(exp_path, cells, out_dir):
-            futures = [pool.submit(run_cell, exp_path, c, out_dir) for c in cells]
-            try:
-                for fut in as_completed(futures):
-                    yield fut.result()
-            finally:
-                for fut in futures:
-                    fut.cancel()
+    pool = ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent, initargs=(os.getpid(),))
 
+    def submit_pool(exp_path, cells, out_dir):
+        futures = [pool.submit(run_cell, exp_path, c, out_dir) for c in cells]
+        for fut in as_completed(futures):
+            yield fut.result()
+
+    try:
         yield submit_pool
+    finally:  # on an error or Ctrl-C, cells not yet started are dropped instead of waited for
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _die_with_parent(parent: int) -> None:
