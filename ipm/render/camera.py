@@ -262,7 +262,7 @@ def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera
                 raise InputError(f"fov_deg: expected a number, got {entry['fov_deg']!r}")
             cam = Camera.from_json(entry)
             check_camera(cam)
-        except ValueError as e:
+        except InputError as e:
             raise InputError(f"{source}: entry {i}: {e}") from None
         cams.append(cam)
     return cams

@@ -225,7 +225,7 @@ def macro_type(spec: Mapping, source: str = "<memory>") -> type[Node]:
     tmpl_dict = _split_template(spec["tree"], names, "root", raw_exprs)
     try:
         template = node_from_dict(tmpl_dict, allow_slots=True)
-    except ValueError as e:
+    except InputError as e:
         raise InputError(f"{where}: {e}") from None
     # Resolve parameter names of expression-valued entries to indices, in pre-order.
     flat_nodes = []
@@ -308,7 +308,7 @@ def load_library(dirs: list[Path | str] | None = None) -> list[str]:
                 continue
             try:
                 cls = macro_type(specs[path], str(path))
-            except ValueError as e:
+            except InputError as e:
                 last_error[path] = str(e)
                 continue
             NODES.add(cls.type_name, cls)

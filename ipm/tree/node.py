@@ -119,12 +119,7 @@ class TreeNode:
         """Build an instance from named values (missing ones take their defaults), checking bounds."""
         size = cls.check_size(size)
         defs = cls.param_defs_for(size)
-        try:
-            values = ParamSpec(defs).validate(given)
-        except InputError:
-            raise
-        except ValueError as e:
-            raise InputError(str(e)) from None
+        values = ParamSpec(defs).validate(given)
         return cls._new(tuple(values[p.name] for p in defs), tuple(children), size, name)
 
     @classmethod

@@ -56,7 +56,7 @@ def parse_settings(name: str, settings: dict) -> IpmSettings:
         raise InputError(f"{name}: setting generator: expected a generator name, got {g!r}")
     try:
         gen = get_generator(g)
-    except ValueError as e:
+    except InputError as e:
         raise InputError(f"{name}: setting generator: {e}") from None
     preset = settings.get("preset")
     if preset is not None and preset not in gen.presets:
