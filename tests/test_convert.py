@@ -142,3 +142,17 @@ def test_real_subprocess(tmp_path, meshes):
                          timeout=300)
     assert bad.returncode == 2 and bad.stderr.startswith("ipm: error: --tolerance") and bad.stderr.count("\n") == 1
     assert not (tmp_path / "t.json").exists()
+
+
+def test_kmeans_labels_are_nearest_centers_and_centers_are_means():
+    """The plane clustering (scipy's kmeans2 from a farthest-point start) is a fixed point of Lloyd's step."""
+    from ipm.convert.bsp import kmeans
+
+    rng = np.random.default_rng(0)
+    pts = np.concatenate([rng.normal(c, 0.05, size=(200, 4)) for c in np.eye(4) * 3])
+    centers, lab = kmeans(pts, 4, np.random.default_rng(1), iters=30)
+    d = ((pts[:, None] - centers[None]) ** 2).sum(-1)
+    assert np.array_equal(lab, d.argmin(1))
+    for j in range(4):
+        assert np.allclose(centers[j], pts[lab == j].mean(0))
+    assert sorted(np.bincount(lab)) == [200, 200, 200, 200]

@@ -90,18 +90,16 @@ def _keep_best(best: tuple, planes: torch.Tensor, sel: np.ndarray, X: torch.Tens
 
 
 def kmeans(points: np.ndarray, k: int, rng: np.random.Generator, iters: int = 20) -> tuple[np.ndarray, np.ndarray]:
-    """Lloyd's k-means from a farthest-point start: ``(centers (k, d), labels (N,))``."""
-    centers = points[farthest_points(points, k, rng)].copy()
-    lab = np.zeros(len(points), dtype=np.int64)
-    for _ in range(iters):
-        d2 = (points * points).sum(1)[:, None] - 2 * points @ centers.T + (centers * centers).sum(1)[None]
-        lab = d2.argmin(1)
-        counts = np.bincount(lab, minlength=len(centers))
-        sums = np.zeros_like(centers)
-        np.add.at(sums, lab, points)
-        ok = counts > 0
-        centers[ok] = sums[ok] / counts[ok, None]
-    return centers, lab
+    """Lloyd's k-means (scipy's ``kmeans2``) from a farthest-point start: ``(centers (k, d), labels (N,))``.
+    An empty cluster keeps its start (the caller gives it a plane out of the way)."""
+    import warnings
+
+    from scipy.cluster.vq import kmeans2
+
+    start = points[farthest_points(points, k, rng)].copy()
+    with warnings.catch_warnings():  # "one of the clusters is empty": expected when k exceeds the faces
+        warnings.simplefilter("ignore", UserWarning)
+        return kmeans2(points, start, iter=iters, minit="matrix", missing="warn")
 
 
 def initial_planes(target: Target, p: int, rng: np.random.Generator, weight: float = 1.0) -> np.ndarray:
