@@ -3,6 +3,7 @@ and the narrow band against a dense evaluation."""
 
 from __future__ import annotations
 
+import manifold3d as m3d  # a required dependency: the oracle of these tests
 import numpy as np
 import pytest
 import torch
@@ -11,7 +12,6 @@ from ipm import sdf
 from ipm.sdf.meshing import check_resolution, grid_shape, mesh_sdf
 from ipm.sdf.tree import Tree
 
-m3d = pytest.importorskip("manifold3d")
 SEG = 256
 UP = [-90.0, 0.0, 0.0]  # manifold3d builds cylinders and revolutions along Z; ours are along Y
 
