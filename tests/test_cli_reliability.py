@@ -326,3 +326,31 @@ def test_ctrl_c_exits_130_with_a_line(tmp_path):
     assert proc.returncode == 130, (proc.returncode, err)
     assert err.strip().splitlines()[-1] == "ipm: error: interrupted"
     assert not (tmp_path / "j.npz").exists()
+
+
+@pytest.mark.parametrize("what, registry", [("strategies", "ipm.optim.strategies:STRATEGIES"),
+                                            ("losses", "ipm.losses:LOSSES"),
+                                            ("methods", "ipm.bench.methods:METHODS")])
+def test_list_shows_each_registry_including_new_members(what, registry, capsys):
+    """``ipm list`` reads the registries, so a member added by one new file shows up with no other edit."""
+    import importlib
+
+    mod, name = registry.split(":")
+    reg = getattr(importlib.import_module(mod), name)
+
+    def throwaway(*a, **k):
+        """A member registered by this test."""
+
+    reg.add("throwaway-member", throwaway)
+    try:
+        code, out, _ = run(["list", what, "--json"], capsys)
+    finally:
+        reg.remove("throwaway-member")
+    rows = {r["name"]: r["doc"] for r in json.loads(out)}
+    assert code == 0 and set(reg.names()) | {"throwaway-member"} == set(rows)
+    assert rows["throwaway-member"] == "A member registered by this test."
+
+
+def test_bare_list_is_fast_to_answer(capsys):
+    code, out, _ = run(["list"], capsys)
+    assert code == 0 and all(f"ipm list {w}" in out for w in ("generators", "nodes", "presets", "strategies"))

@@ -23,11 +23,11 @@ def register(app: typer.Typer) -> None:
         up: Annotated[str, typer.Option(help="up axis of --target-mesh: y or z")] = "y",
         camera: Annotated[str, typer.Option(help="known (cameras.json) or fit (recover elevation, "
                                                  "distance, FOV)")] = "known",
-        discrete: Annotated[str, typer.Option(help="memetic, nlopt, enumerate or none")] = "memetic",
+        discrete: Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")] = "memetic",
         budget: Annotated[int, typer.Option(help="function evaluations (one render + loss each)")] = 1500,
         seed: SeedOpt = 0,
         preset: PresetOpt = None,
-        loss: Annotated[str, typer.Option(help="mask loss: iou or mse")] = "iou",
+        loss: Annotated[str, typer.Option(help="mask loss (ipm list losses)")] = "iou",
         local: Annotated[str, typer.Option(help="gradient refinement: adam, mma or lbfgs (nlopt)")] = "adam",
         lr: Annotated[float | None, typer.Option(help="Adam learning rate in normalized parameter space "
                                                  "(default: the generator's, 0.005 for dishes, else 0.02)")] = None,

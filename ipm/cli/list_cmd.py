@@ -1,4 +1,4 @@
-"""``ipm list generators|nodes|presets``."""
+"""``ipm list generators|nodes|presets|strategies|losses|methods``: what the registries hold."""
 
 from __future__ import annotations
 
@@ -9,10 +9,40 @@ import typer
 
 from ipm.cli.common import JsonOpt, LibraryOpt, UsageError, emit
 
-WHAT = ("generators", "nodes", "presets")
+WHAT = ("generators", "nodes", "presets", "strategies", "losses", "methods")
 HELP = {"generators": "procedural generators: kind, parameter counts, presets",
         "nodes": "SDF node types: dimension, children, parameters",
-        "presets": "named starting points of every generator and tree"}
+        "presets": "named starting points of every generator and tree",
+        "strategies": "discrete search strategies of ipm fit --discrete",
+        "losses": "mask losses of ipm fit --loss",
+        "methods": "bench methods of experiment files"}
+
+
+def _members(registry) -> list[dict]:
+    """Name and first docstring line of each member of a registry."""
+    out = []
+    for name, member in registry.items():
+        doc = (getattr(member, "__doc__", None) or "").strip().splitlines()
+        out.append({"name": name, "doc": doc[0] if doc else ""})
+    return out
+
+
+def _strategies() -> list[dict]:
+    from ipm.optim.strategies import STRATEGIES
+
+    return _members(STRATEGIES)
+
+
+def _losses() -> list[dict]:
+    from ipm.losses import LOSSES
+
+    return _members(LOSSES)
+
+
+def _methods() -> list[dict]:
+    from ipm.bench.methods import METHODS
+
+    return _members(METHODS)
 
 
 def _generators() -> list[dict]:
@@ -61,7 +91,7 @@ def _presets() -> list[dict]:
 def register(app: typer.Typer) -> None:
     @app.command("list")
     def list_cmd(
-        what: Annotated[str | None, typer.Argument(help="generators, nodes or presets")] = None,
+        what: Annotated[str | None, typer.Argument(help=", ".join(WHAT))] = None,
         json_out: JsonOpt = False,
         library: LibraryOpt = None,
     ) -> None:
@@ -76,7 +106,8 @@ def register(app: typer.Typer) -> None:
             from ipm.sdf.complex import load_library
 
             load_library([str(p) for p in library])
-        rows = {"generators": _generators, "nodes": _nodes, "presets": _presets}[what]()
+        rows = {"generators": _generators, "nodes": _nodes, "presets": _presets, "strategies": _strategies,
+                "losses": _losses, "methods": _methods}[what]()
         if json_out:
             emit(rows, True)
             return
