@@ -137,6 +137,13 @@ def _declared_generator(path: str) -> str | None:
     return kind if isinstance(kind, str) else None
 
 
+def check_format(data, fmt: str, what: str) -> None:
+    """Refuse (:class:`InputError`) a generator file whose ``"generator"`` field is not ``fmt``."""
+    if not isinstance(data, Mapping) or data.get("generator") != fmt:
+        got = data.get("generator") if isinstance(data, Mapping) else data
+        raise InputError(f"{what}: expected an object with \"generator\": \"{fmt}\", got {str(got)[:40]!r}")
+
+
 def all_generators() -> dict[str, Callable[[], Generator]]:
     """Every registered generator factory by name."""
     return dict(GENERATORS.items())

@@ -52,7 +52,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
-from ipm.generators.base import Generator, ValuesField, register_generator
+from ipm.generators.base import Generator, ValuesField, check_format, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -399,9 +399,7 @@ class BspGenerator(Generator):
     @staticmethod
     def from_json(data: Mapping) -> BspGenerator:
         """A generator from :meth:`to_json`'s document; ``ValueError`` says what is missing or wrong."""
-        if not isinstance(data, Mapping) or data.get("generator") != FORMAT:
-            raise InputError(f"bsp file: expected an object with \"generator\": \"{FORMAT}\", "
-                             f"got {str(data.get('generator') if isinstance(data, Mapping) else data)[:40]!r}")
+        check_format(data, FORMAT, "bsp file")
         missing = [k for k in ("planes", "convexes", "params") if k not in data]
         if missing:
             raise InputError(f"bsp file: expected fields planes, convexes, params; missing {', '.join(missing)}")

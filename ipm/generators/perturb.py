@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
-from ipm.generators.base import Generator, ValuesField, register_generator
+from ipm.generators.base import Generator, ValuesField, check_format, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -289,9 +289,7 @@ class PerturbGenerator(Generator):
     @staticmethod
     def from_json(data: Mapping) -> PerturbGenerator:
         """A generator from :meth:`to_json`'s document; ``ValueError`` says what is missing or wrong."""
-        if not isinstance(data, Mapping) or data.get("generator") != FORMAT:
-            raise InputError(f"perturb file: expected an object with \"generator\": \"{FORMAT}\", "
-                             f"got {str(data.get('generator') if isinstance(data, Mapping) else data)[:40]!r}")
+        check_format(data, FORMAT, "perturb file")
         if "perturbations" not in data or not isinstance(data.get("params"), Mapping):
             raise InputError("perturb file: expected fields perturbations (a count) and params (an object)")
         try:
