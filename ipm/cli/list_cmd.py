@@ -95,7 +95,7 @@ def register(app: typer.Typer) -> None:
         json_out: JsonOpt = False,
         library: LibraryOpt = None,
     ) -> None:
-        """List registered generators, SDF node types, or presets."""
+        """List what the registries hold: generators, node types, presets, strategies, losses, methods."""
         if what is None:  # what can be listed (cheap: no generator is loaded)
             emit({w: f"ipm list {w}" for w in WHAT} if json_out else
                  "\n".join(f"ipm list {w:<11} {HELP[w]}" for w in WHAT), json_out)
