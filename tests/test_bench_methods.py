@@ -26,7 +26,7 @@ def test_every_method_is_one_module_of_the_package():
     ("visual-hull", {"resolution": True}, "resolution", "expected an integer"),
     ("visual-hull", {"resolutoin": 24}, "resolutoin", "expected one of: resolution"),
     ("ipm", {"generator": "dishes", "lrr": 0.1}, "lrr", "expected some of: .*generator"),
-    ("ipm", {"generator": "dishes", "lr": "fast"}, "lr", "expected float"),
+    ("ipm", {"generator": "dishes", "lr": "fast"}, "lr", r"expected a learning rate in \(0, 1\], got 'fast'"),
     ("ipm", {"generator": "dishes", "lr": 5.0}, "lr", r"expected a learning rate in \(0, 1\]"),
     ("ipm", {"generator": "dishes", "max_size": 2}, "max_size", r"expected an integer in \[8, 4096\]"),
     ("ipm", {"generator": "no-such-generator"}, "generator", "unknown generator 'no-such-generator'"),

@@ -80,7 +80,8 @@ def test_non_finite_loss_is_steered_away():
 
 
 def test_settings_validation():
-    for bad, msg in [(dict(budget=0), "at least 1"), (dict(discrete="random"), "discrete search"),
+    for bad, msg in [(dict(budget=0), "budget: expected an integer >= 1, got 0"),
+                     (dict(discrete="random"), "discrete search"),
                      (dict(camera="maybe"), "camera"), (dict(loss="l7"), "loss"), (dict(local="sgd"), "local"),
                      (dict(lr=0.0), r"lr: expected a learning rate in \(0, 1\]")]:
         with pytest.raises(ValueError, match=msg):

@@ -13,9 +13,11 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Annotated, Literal, get_args
 
 import numpy as np
 import torch
+from msgspec import Meta
 
 from ipm.optim.encoding import decode_discrete, encode_discrete
 from ipm.optim.evaluator import Evaluator
@@ -52,28 +54,33 @@ class Space:
         return decode_discrete(self.discrete, z, self.fixed_discrete)
 
 
+# Settings of the built-in searches. Each field's type says what it allows (msgspec checks it:
+# FitSettings.check); the tournament being at most the population is checked there too.
+Probability = Annotated[float, Meta(ge=0, le=1, extra={"noun": "a probability"})]
+LearningRate = Annotated[float, Meta(gt=0, le=1, extra={"noun": "a learning rate"})]
+NloptAlgorithm = Literal["GN_CRS2_LM", "GN_ESCH", "GN_ISRES"]
+NLOPT_GLOBAL: tuple[str, ...] = get_args(NloptAlgorithm)
+
+
 @dataclass(frozen=True)
 class MemeticSettings:
-    population: int = 8
-    tournament: int = 2
-    p_mutation: float = 0.2
-    sigma_mutation: float = 0.3
-    refine_steps: int = 50
-    lr: float | None = None   # Adam step of the offspring refinement; None: the fit's (thesis: 0.01)
-    stall_generations: int = 3
-    min_diversity: float = 0.02
+    population: Annotated[int, Meta(ge=2, extra={"noun": "a population"})] = 8
+    tournament: Annotated[int, Meta(ge=1, extra={"noun": "a tournament size"})] = 2
+    p_mutation: Probability = 0.2
+    sigma_mutation: Annotated[float, Meta(ge=0, extra={"noun": "a spread"})] = 0.3
+    refine_steps: Annotated[int, Meta(ge=1, extra={"noun": "a number of steps"})] = 50
+    lr: LearningRate | None = None   # Adam step of the offspring refinement; None: the fit's (thesis: 0.01)
+    stall_generations: Annotated[int, Meta(ge=1, extra={"noun": "a number of generations"})] = 3
+    min_diversity: Annotated[float, Meta(ge=0, extra={"noun": "a diversity"})] = 0.02
     neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value
     refine_elite: bool = True  # the elite is refined again in every generation (not only copied)
 
 
 @dataclass(frozen=True)
 class NloptSettings:
-    algorithm: str = "GN_CRS2_LM"
-    refine_steps: int = 10
-    population: int = 0  # 0: nlopt's default
-
-
-NLOPT_GLOBAL = ("GN_CRS2_LM", "GN_ESCH", "GN_ISRES")
+    algorithm: NloptAlgorithm = "GN_CRS2_LM"
+    refine_steps: Annotated[int, Meta(ge=1, extra={"noun": "a number of steps"})] = 10
+    population: Annotated[int, Meta(ge=0, extra={"noun": "a population"})] = 0  # 0: nlopt's default
 
 
 def best_pose(ev: Evaluator, space: Space, x: torch.Tensor, d: dict) -> torch.Tensor:

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import asdict, dataclass, field, fields, is_dataclass
+from typing import Annotated, Any, Literal, get_args
 
 import numpy as np
+from msgspec import Meta
 
 from ipm import losses as L
 from ipm.errors import InputError
@@ -15,6 +14,7 @@ from ipm.optim import discrete as D
 from ipm.optim import gradient as G
 from ipm.optim.strategies import STRATEGIES
 from ipm.params import dataclass_from
+from ipm.settings_check import allowed, error_path, field_types, first_infinite
 
 # Default Adam steps in normalized parameter space (generators may set ``mask_lr``; ``--lr`` overrides)
 MASK_LR = 0.02
@@ -23,95 +23,108 @@ MESH_LR = 0.02
 # where the soft silhouette's 0.5 level lies within about 0.2 px of the hard one (measured on the
 # teacup-to-mug test: final exact IoU 0.96 with 0.15, 0.98 with 0.03)
 POLISH_SIGMA_FACTOR = 0.03
-CAMERA_MODES = ("known", "fit")
+CameraMode = Literal["known", "fit"]
+CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 
 
 @dataclass
 class FitSettings:
-    """Everything a fit can be told. Defaults are what ``ipm fit`` uses."""
+    """Everything a fit can be told. Defaults are what ``ipm fit`` uses.
 
-    budget: int = 1500
-    seed: int = 0
+    Each field's type says what it allows (``Meta`` bounds, ``Literal`` choices), checked by msgspec in
+    :meth:`check`; the fields whose choices come from a registry (``discrete``, ``loss``, ``local``) and
+    the rules between fields are checked there explicitly."""
+
+    budget: Annotated[int, Meta(ge=1)] = 1500
+    seed: Annotated[int, Meta(ge=0, extra={"noun": "a seed"})] = 0
     discrete: str = "memetic"        # a search strategy: ipm.optim.strategies.STRATEGIES
-    camera: str = "known"            # known | fit
+    camera: CameraMode = "known"
     loss: str = "iou"                # a mask loss of ipm.losses.LOSSES; chamfer for mesh targets is automatic
-    local: str = "adam"              # adam | mma | lbfgs
-    lr: float | None = None          # Adam step in normalized space; None: the generator's (see fit_lr)
-    sigma: float = 0.0               # soft rasterizer blur; 0 = the renderer's default for the image size
+    local: str = "adam"              # adam | mma | lbfgs (ipm.optim.gradient.LOCAL)
+    lr: D.LearningRate | None = None  # Adam step in normalized space; None: the generator's (see fit_lr)
+    # soft rasterizer blur; 0 = the renderer's default for the image size
+    sigma: Annotated[float, Meta(ge=0, extra={"noun": "a blur"})] = 0.0
     preset: str | None = None        # start from this preset (default: the generator's defaults)
-    free: list[str] | None = None    # continuous parameters to fit (default: all)
-    fix: dict = field(default_factory=dict)   # parameters held at given values
-    ranges: dict = field(default_factory=dict)  # discrete parameter -> [lo, hi]: search only these values
+    # continuous parameters to fit (default: all)
+    free: Annotated[list[str], Meta(extra={"noun": "a list of parameter names"})] | None = None
+    # parameters held at given values
+    fix: Annotated[dict, Meta(extra={"noun": "a dict of parameter names"})] = field(default_factory=dict)
+    # discrete parameter -> [lo, hi]: search only these values
+    ranges: Annotated[dict, Meta(extra={"noun": "a dict of parameter names"})] = field(default_factory=dict)
     pose: bool = True
-    prior_weight: float = 0.0        # pull towards the starting preset in normalized space
-    polish: float = 0.15             # share of the budget kept for the final gradient refinement
+    # pull towards the starting preset in normalized space
+    prior_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 0.0
+    # share of the budget kept for the final gradient refinement
+    polish: Annotated[float, Meta(ge=0, le=1, extra={"noun": "a share of the budget"})] = 0.15
     coarse_to_fine: bool = True      # silhouettes: hold the generator's detail parameters during the search
     lod: Any = None
-    resolution: int = 128            # SDF generators: meshing of the result
+    # SDF generators: meshing of the result
+    resolution: Annotated[int, Meta(ge=8, extra={"noun": "a meshing resolution"})] = 128
     ties: bool = True                # discrete values the input cannot tell apart go to the preset's (break_ties)
     memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
     nlopt: D.NloptSettings = field(default_factory=D.NloptSettings)
 
     def __post_init__(self):
-        # nested settings may come as dicts (JSON run files, experiment TOML, the Python API)
+        # nested settings may come as dicts (JSON run files, experiment TOML, the Python API); unknown
+        # keys are refused here, the values by check()
         for name, cls in (("memetic", D.MemeticSettings), ("nlopt", D.NloptSettings)):
             v = getattr(self, name)
             if isinstance(v, dict):
                 setattr(self, name, dataclass_from(cls, v, f"{name} settings", "setting(s)"))
 
     def check(self) -> None:
-        """Raise :class:`~ipm.errors.InputError` ("expected ..., got ...") for a field out of range."""
-        _whole(self.budget, "budget", 1, "at least 1 evaluation")
-        _whole(self.seed, "seed", 0, "a seed >= 0")
+        """Raise :class:`~ipm.errors.InputError` ("budget: expected an integer >= 1, got 0") for a field
+        of the wrong type or out of range; nested fields are named "memetic population"."""
+        import msgspec
+
         _one_of(self.discrete, "discrete search", STRATEGIES.names())
-        _one_of(self.camera, "camera", CAMERA_MODES)
         _one_of(self.loss, "loss", L.LOSSES.names())
         _one_of(self.local, "local optimizer", G.LOCAL)
-        if self.lr is not None:
-            _number(self.lr, "lr", "a learning rate in (0, 1]", lambda v: 0 < v <= 1)
-        _number(self.sigma, "sigma", "a blur >= 0 (0: the renderer's default)", lambda v: v >= 0)
-        _number(self.prior_weight, "prior weight", "a weight >= 0", lambda v: v >= 0)
-        _number(self.polish, "polish", "a share of the budget in [0, 1]", lambda v: 0 <= v <= 1)
-        _whole(self.resolution, "resolution", 8, "a meshing resolution >= 8")
-        for name in ("pose", "coarse_to_fine", "ties"):
-            if not isinstance(getattr(self, name), bool):
-                raise InputError(f"{name}: expected true or false, got {getattr(self, name)!r}")
-        if self.free is not None and not (isinstance(self.free, (list, tuple)) and
-                                          all(isinstance(n, str) for n in self.free)):
-            raise InputError(f"free: expected a list of parameter names, got {self.free!r}")
-        for name in ("fix", "ranges"):
-            if not isinstance(getattr(self, name), dict):
-                raise InputError(f"{name}: expected a dict of parameter names, got {getattr(self, name)!r}")
+        data = _plain(self)
+        try:
+            msgspec.convert(data, FitSettings)
+        except msgspec.ValidationError as e:
+            raise InputError(_message(data, str(e))) from None
+        bad = first_infinite(data, FitSettings)
+        if bad:
+            raise InputError(_message(data, "", bad))
         m = self.memetic
-        _whole(m.population, "memetic population", 2, "at least 2 individuals")
-        _whole(m.tournament, "memetic tournament", 1, f"a size in [1, {m.population}] (the population)")
         if m.tournament > m.population:
             raise InputError(f"memetic tournament: expected a size in [1, {m.population}] (the population), "
                              f"got {m.tournament}")
-        _number(m.p_mutation, "memetic p_mutation", "a probability in [0, 1]", lambda v: 0 <= v <= 1)
-        _number(m.sigma_mutation, "memetic sigma_mutation", "a spread >= 0", lambda v: v >= 0)
-        _whole(m.refine_steps, "memetic refine_steps", 1, "at least 1 step")
-        if m.lr is not None:
-            _number(m.lr, "memetic lr", "a learning rate in (0, 1]", lambda v: 0 < v <= 1)
-        _whole(m.stall_generations, "memetic stall_generations", 1, "at least 1 generation")
-        _number(m.min_diversity, "memetic min_diversity", "a diversity >= 0", lambda v: v >= 0)
-        _one_of(self.nlopt.algorithm, "nlopt algorithm", D.NLOPT_GLOBAL)
-        _whole(self.nlopt.refine_steps, "nlopt refine_steps", 1, "at least 1 step")
-        _whole(self.nlopt.population, "nlopt population", 0, "a population >= 0 (0: nlopt's default)")
 
     def to_json(self) -> dict:
         return asdict(self)
 
 
-def _whole(value, name: str, lo: int, expected: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
-        raise InputError(f"{name}: expected {expected}, got {value!r}")
+# how the fields are named in messages (others: by their name; nested ones after their parent's)
+_LABELS = {"discrete": "discrete search", "local": "local optimizer", "prior_weight": "prior weight"}
 
 
-def _number(value, name: str, expected: str, ok: Callable[[float], bool]) -> None:
-    if (isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating))
-            or not math.isfinite(value) or not ok(value)):
-        raise InputError(f"{name}: expected {expected}, got {value!r}")
+def _plain(v):
+    """Settings as msgspec sees them: dataclasses as dicts of their fields (shallow: the values of
+    ``fix`` or ``lod`` are not copied), numpy scalars as Python ones."""
+    if is_dataclass(v) and not isinstance(v, type):
+        return {f.name: _plain(getattr(v, f.name)) for f in fields(v)}
+    if isinstance(v, (list, tuple)):
+        return [_plain(x) for x in v]
+    return v.item() if isinstance(v, np.generic) else v
+
+
+def _message(data: dict, error: str, path: tuple[str, ...] | None = None) -> str:
+    """One line naming the field a msgspec error points at, what it allows and what it got."""
+    path = error_path(error) if path is None else path
+    cls, value, t, names = FitSettings, data, None, []
+    for name in path:
+        types = field_types(cls) if cls is not None else {}
+        if name not in types or not isinstance(value, dict):
+            break
+        t, value, names = types[name], value.get(name), [*names, name]
+        cls = getattr(t, "cls", None)
+    if not names:
+        return f"settings: {error}"
+    label = " ".join([_LABELS.get(names[0], names[0]), *names[1:]])
+    return f"{label}: expected {allowed(t)}, got {value!r}"
 
 
 def _one_of(value, name: str, known) -> None:

@@ -98,35 +98,14 @@ def parse_struct(cls: type, method: str, settings: dict):
 
 
 def _settings_message(cls: type, method: str, settings: dict, error: str) -> str:
-    import re
+    from ipm.settings_check import allowed, error_path, field_types, unknown_field
 
-    import msgspec.inspect as mi
-
-    fields = {f.name: f.type for f in mi.type_info(cls).fields}
-    unknown = re.search(r"unknown field `([^`]*)`", error)
+    fields = field_types(cls)
+    unknown = unknown_field(error)
     if unknown:
-        return (f"{method}: unknown setting {unknown.group(1)!r}; expected one of: "
-                f"{', '.join(sorted(fields))}")
-    at = re.search(r"at `\$\.([A-Za-z0-9_]+)", error)
-    if at and at.group(1) in fields:
-        key = at.group(1)
-        return f"{method}: setting {key}: expected {_allowed(fields[key])}, got {settings.get(key)!r}"
+        return f"{method}: unknown setting {unknown!r}; expected one of: {', '.join(sorted(fields))}"
+    path = error_path(error)
+    if path and path[0] in fields:
+        key = path[0]
+        return f"{method}: setting {key}: expected {allowed(fields[key])}, got {settings.get(key)!r}"
     return f"{method}: settings: expected valid settings, got {error}"
-
-
-def _allowed(t) -> str:
-    """What a msgspec field type allows, in words: "an integer in [1, 5]", "one of 'a', 'b'"."""
-    import msgspec.inspect as mi
-
-    if isinstance(t, mi.LiteralType):
-        return "one of " + ", ".join(repr(v) for v in t.values)
-    if isinstance(t, (mi.IntType, mi.FloatType)):
-        what = "an integer" if isinstance(t, mi.IntType) else "a number"
-        lo = f"[{t.ge}" if t.ge is not None else f"({t.gt}" if t.gt is not None else "(-inf"
-        hi = f"{t.le}]" if t.le is not None else f"{t.lt})" if t.lt is not None else "inf)"
-        return what if lo == "(-inf" and hi == "inf)" else f"{what} in {lo}, {hi}"
-    if isinstance(t, mi.BoolType):
-        return "true or false"
-    if isinstance(t, mi.StrType):
-        return "a string"
-    return type(t).__name__.removesuffix("Type").lower()
