@@ -184,6 +184,8 @@ CASES = {
     "bench: target mesh missing": (lambda i, o: ["bench", _experiment(i, BASE + '[[targets]]\nname = "t"\n'
                                                                          'mesh = "none.ply"\n' + GOOD_METHOD),
                                                  "-o", o], "none.ply"),
+    "bench: infinite distance": (lambda i, o: ["bench", _experiment(i, BASE + "distance = inf\nTARGET"
+                                                                    + GOOD_METHOD), "-o", o], "distance"),
     "bench: no workers": (lambda i, o: ["bench", _experiment(i, BASE + "TARGET" + GOOD_METHOD), "--workers", "0",
                                         "-o", o], "--workers"),
     "bench: output is a file": (lambda i, o: ["bench", _experiment(i, BASE + "TARGET" + GOOD_METHOD),

@@ -188,10 +188,16 @@ class _File(msgspec.Struct, forbid_unknown_fields=True):
 
 
 def _convert(data, schema, where: str):
+    from ipm.settings_check import first_infinite
+
     try:
-        return msgspec.convert(data, schema)
+        out = msgspec.convert(data, schema)
     except msgspec.ValidationError as e:
         raise InputError(f"{where}: {e}") from None
+    bad = first_infinite(data, schema)  # msgspec's bounds let NaN and infinities through
+    if bad:
+        raise InputError(f"{where}: {'.'.join(bad)}: expected a finite number, got {data[bad[0]]!r}")
+    return out
 
 
 def load_experiment(path: str | Path) -> Experiment:
