@@ -121,9 +121,6 @@ def main(argv: list[str] | None = None) -> None:
     except OSError as e:  # missing, unreadable or unwritable files, a full disk: the environment, not a bug
         error_line(os_error_line(e))
         rc = 2
-    except RecursionError:
-        error_line("input nested too deeply")
-        rc = 2
     except MemoryError:
         error_line("out of memory; reduce the sizes asked for")
         rc = 2
