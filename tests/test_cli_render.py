@@ -44,8 +44,9 @@ def test_render_mesh_file(tmp_path, capsys):
     assert code == 0, err
     res = json.loads(stdout)
     assert res["views"] == 2 and len(res["masks"]) == 2 and len(res["previews"]) == 2
-    assert sorted(p.name for p in out.iterdir()) == ["cameras.json", "preview_000.png", "preview_001.png",
-                                                    "view_000.png", "view_001.png"]
+    assert sorted(p.name for p in out.iterdir()) == ["cameras.json", "depth_000.npy", "depth_001.npy",
+                                                    "normal_000.png", "normal_001.png", "preview_000.png",
+                                                    "preview_001.png", "view_000.png", "view_001.png"]
     ms = load_mask_set(out)
     assert ms.masks.shape == (2, 64, 64) and 200 < int(ms.masks[0].sum()) < 64 * 64
     for a, b in zip(ms.cameras, input_views(2, 64)):

@@ -101,6 +101,38 @@ def _check_sizes(cams: list, where: str) -> list:
     return cams
 
 
+def _cue_maps(fr, mesh) -> dict:
+    """Depth (NaN where empty), normals, mask and part labels (-1 background; None without parts) of one view."""
+    import torch
+
+    depth = torch.where(fr.mask, fr.depth, torch.full_like(fr.depth, float("nan")))
+    parts = None
+    if mesh.groups is not None and mesh.group_names:
+        groups = mesh.groups.to(fr.face.device)
+        parts = torch.where(fr.mask, groups[fr.face.clamp_min(0)], torch.full_like(fr.face, -1))
+    return {"depth": depth, "normal": fr.normal, "mask": fr.mask, "parts": parts}
+
+
+def _save_cues(folder: Path, maps: list[dict], part_names) -> None:
+    from ipm.io.cues import (
+        depth_name,
+        normal_name,
+        part_name,
+        write_depth,
+        write_normals,
+        write_part_names,
+        write_parts,
+    )
+
+    for i, m in enumerate(maps):
+        write_depth(folder / depth_name(i), m["depth"])
+        write_normals(folder / normal_name(i), m["normal"], m["mask"])
+        if m["parts"] is not None:
+            write_parts(folder / part_name(i), m["parts"])
+    if maps and maps[0]["parts"] is not None:
+        write_part_names(folder, part_names)
+
+
 def _check_outside(mesh, cameras) -> None:
     """Every vertex must be in front of every camera (a camera inside the object cannot see it whole)."""
     from ipm.render.camera import project
@@ -142,6 +174,9 @@ def register(app: typer.Typer) -> None:
             help="image size in pixels for --views [default: 256]")] = None,
         resolution: Annotated[int, typer.Option(help="marching-cubes samples along the longest side "
                                                      "(SDF generators)")] = 128,
+        cues: Annotated[bool, typer.Option("--cues/--no-cues", help=(
+            "also write depth_###.npy (view-axis depth, scene units), normal_###.png and, for meshes with "
+            "parts, part_###.png with parts.json"))] = True,
         preview_views: Annotated[bool, typer.Option("--previews/--no-previews",
                                                     help="also write shaded previews")] = True,
         library: LibraryOpt = None,
@@ -151,6 +186,7 @@ def register(app: typer.Typer) -> None:
         import numpy as np
 
         from ipm.files import staged_directory
+        from ipm.io.cues import depth_name, part_name
         from ipm.io.masks import CAMERAS_FILE, save_mask_set, view_name
         from ipm.render.preview import save_png, shade_fragments
         from ipm.render.raster import rasterize
@@ -170,10 +206,12 @@ def register(app: typer.Typer) -> None:
         _check_outside(mesh, cams)
 
         result = {"dir": str(output), "views": len(cams), "faces": mesh.n_faces, **about}
-        rendered, pictures, ious = [], [], []
+        rendered, pictures, ious, maps = [], [], [], []
         for cam in cams:
             fr = rasterize(mesh.verts, mesh.faces, cam, near=NEAR)
             rendered.append(fr.mask.cpu().numpy())
+            if cues:
+                maps.append(_cue_maps(fr, mesh))
             if preview_views:
                 pictures.append(shade_fragments(fr, cam, mesh))
         empty = [i for i, m in enumerate(rendered) if not m.any()]
@@ -191,6 +229,7 @@ def register(app: typer.Typer) -> None:
                                              ", ".join(map(str, clipped)))
         with staged_directory(output) as tmp:
             save_mask_set(tmp, rendered, cams)
+            _save_cues(tmp, maps, mesh.group_names)
             for i, pic in enumerate(pictures):
                 save_png(tmp / f"preview_{i:03d}.png", pic)
             if target is not None:
@@ -201,6 +240,10 @@ def register(app: typer.Typer) -> None:
                     ious.append(mask_iou(t, m))
                     overlay(t, m, f"view {i}").save(tmp / f"overlay_{i:03d}.png", format="PNG")
         result["masks"] = [str(output / view_name(i)) for i in range(len(cams))]
+        if maps:
+            result["depth"] = [str(output / depth_name(i)) for i in range(len(cams))]
+            if maps[0]["parts"] is not None:
+                result["parts"] = [str(output / part_name(i)) for i in range(len(cams))]
         result["cameras"] = str(output / CAMERAS_FILE)
         if pictures:
             result["previews"] = [str(output / f"preview_{i:03d}.png") for i in range(len(pictures))]
