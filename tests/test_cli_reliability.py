@@ -43,6 +43,15 @@ def _cameras(width: int, height: int, n: int = 1) -> list[dict]:
                                                     height=height) for i in range(n)]))
 
 
+def _photo(folder: Path) -> Path:
+    """A small RGB photo (64 x 48) for ``ipm mask`` cases."""
+    from PIL import Image
+
+    path = folder / "photo.png"
+    Image.fromarray(np.full((48, 64, 3), 90, np.uint8)).save(path)
+    return path
+
+
 def _write(path: Path, content) -> Path:
     if isinstance(content, bytes):
         path.write_bytes(content)
@@ -132,6 +141,14 @@ CASES = {
     "render: masks folder missing": (lambda i, o: ["render", "dishes", "--masks", i / "nomasks", "-o", o],
                                      "nomasks"),
     "render: output is a file": (lambda i, o: ["render", "dishes", "-o", _write(i / "f.txt", "x")], "f.txt"),
+    # mask
+    "mask: photo missing": (lambda i, o: ["mask", i / "none.jpg", "--box", "1,1,20,20", "-o", o / "m.png"], "none.jpg"),
+    "mask: not an image": (lambda i, o: ["mask", _write(i / "p.jpg", b"\x00\xffnot a jpeg"), "--box", "1,1,20,20",
+                                         "-o", o / "m.png"], "p.jpg"),
+    "mask: box outside the photo": (lambda i, o: ["mask", _photo(i), "--box", "10,10,200,20", "-o", o / "m.png"],
+                                    "box"),
+    "mask: box not four numbers": (lambda i, o: ["mask", _photo(i), "--box", "10,10,30", "-o", o / "m.png"], "--box"),
+    "mask: bad suffix": (lambda i, o: ["mask", _photo(i), "--box", "10,10,30,30", "-o", o / "m.jpg"], "suffix"),
     # fit
     "fit: no target": (lambda i, o: ["fit", "dishes", "-o", o], "target"),
     "fit: budget 0": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--budget", "0", "-o", o],
@@ -221,7 +238,7 @@ def test_bad_input_exits_2_with_one_line_and_leaves_nothing(case, tmp_path, caps
 
 def test_the_table_covers_every_command():
     commands = {c.split(":")[0] for c in CASES}
-    assert commands == {"list", "generate", "jacobian", "render", "fit", "convert", "bench"}
+    assert commands == {"list", "generate", "jacobian", "render", "mask", "fit", "convert", "bench"}
     assert len(CASES) >= 45
 
 

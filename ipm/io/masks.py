@@ -61,6 +61,21 @@ def read_mask(path: str | Path) -> np.ndarray:
     return arr > 127
 
 
+def read_photo(path: str | Path) -> np.ndarray:
+    """A photo (JPEG, PNG, ...) as ``(H, W, 3)`` uint8 RGB (alpha and palettes are converted)."""
+    from PIL import Image, UnidentifiedImageError
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"photo not found: {path}")
+    try:
+        with Image.open(path) as im:
+            im.load()
+            return np.asarray(im.convert("RGB"))
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+        raise InputError(f"photo {path}: expected an image file, got an unreadable file ({type(e).__name__})") from None
+
+
 def write_mask(path: str | Path, mask) -> Path:
     """Write a (H, W) bool mask as an 8-bit PNG (0 / 255), atomically."""
     from PIL import Image
