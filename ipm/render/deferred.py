@@ -10,7 +10,7 @@ split a differentiable renderer into a few composable operations; we follow it:
 2. :func:`interpolate` -- any per-vertex attribute at the pixels, differentiable in the attribute and,
    through the barycentrics, in the vertex positions. Helpers: :func:`depth`, :func:`face_normal_image`,
    :func:`vertex_normal_image`, :func:`part_labels`.
-3. :func:`antialias` -- analytic edge antialiasing (paper section 3.3 / 4.3 of nvdiffrast): where two
+3. :func:`antialias` -- analytic edge antialiasing (the paper's antialiasing section): where two
    neighbouring pixels see different faces and the front one's triangle has a silhouette edge between
    their centers, the colors are blended by where the edge crosses the segment, which makes the image a
    differentiable function of the vertex positions at silhouette and occlusion boundaries.
@@ -22,7 +22,8 @@ Barycentrics (op 1). With the camera at the origin of camera space, the ray thro
 direction ``d = ((x - W/2)/f, -(y - H/2)/f, -1)`` and it meets the plane of the triangle ``P0 P1 P2`` at
 the point whose barycentrics are proportional to the signed volumes of the tetrahedra it spans with the
 edges: ``b_i ∝ d · (P_j × P_k)`` for ``(i, j, k)`` cyclic, with sum ``d · ((P1 - P0) × (P2 - P0))``
-(Möller and Trumbore 1997 in triple-product form). These are exactly the perspective-correct
+(Cramer's rule on the ray-plane system in triple-product form, as in
+Möller and Trumbore 1997). These are exactly the perspective-correct
 barycentrics (the hit point is ``Σ b_i P_i``), so interpolating camera-space depth reproduces the depth
 of the ray hit, which is what the exact rasterizer's 1/z plane gives.
 """
@@ -143,8 +144,7 @@ def vertex_normals(verts: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
 def face_normal_image(verts: torch.Tensor, faces: torch.Tensor, rast: Raster) -> torch.Tensor:
     """Flat world-space normals (H, W, 3) of the visible faces (zero where empty), differentiable in
     ``verts`` (the face ids are not)."""
-    n = face_normals(verts, faces)
-    return torch.where(rast.mask[..., None], n[rast.face.clamp_min(0)], 0.0)
+    return _per_face(face_normals(verts, faces), rast, 0.0)
 
 
 def vertex_normal_image(verts: torch.Tensor, faces: torch.Tensor, rast: Raster) -> torch.Tensor:
@@ -157,10 +157,17 @@ def vertex_normal_image(verts: torch.Tensor, faces: torch.Tensor, rast: Raster) 
 def part_labels(groups: torch.Tensor | None, rast: Raster) -> torch.Tensor:
     """Part index (H, W) int64 of the visible face (``groups[face]``; 0 for every face when ``groups`` is
     None), -1 where empty."""
-    face = rast.face
     if groups is None:
         return torch.where(rast.mask, 0, -1).to(torch.int64)
-    return torch.where(rast.mask, groups[face.clamp_min(0)], -1)
+    return _per_face(groups[:, None], rast, -1)[..., 0]
+
+
+def _per_face(values: torch.Tensor, rast: Raster, background) -> torch.Tensor:
+    """(F, C) face values at the pixels (H, W, C), ``background`` where empty (safe for F = 0)."""
+    H, W = rast.shape
+    pix = rast.mask.reshape(-1).nonzero().squeeze(1)
+    out = torch.full((H * W, values.shape[1]), background, dtype=values.dtype, device=values.device)
+    return out.index_put((pix,), values[rast.face.reshape(-1)[pix]]).view(H, W, -1)
 
 
 def shade(normal: torch.Tensor, mask: torch.Tensor, light_dir: torch.Tensor | None = None,
@@ -189,7 +196,7 @@ def silhouette_edges(verts: torch.Tensor, faces: torch.Tensor, camera: Camera) -
 
     An edge of a face is a silhouette if no other face sharing it (by vertex indices) faces the camera
     the same way (front or back): boundary edges, and edges between a front- and a back-facing face.
-    nvdiffrast's antialias uses the same criterion through its topology hash. No gradient.
+    nvdiffrast's antialias finds the neighbouring face through its topology hash for the same test. No gradient.
     """
     F = faces.shape[0]
     dev = faces.device
@@ -294,6 +301,30 @@ def antialias(color: torch.Tensor, rast: Raster, verts: torch.Tensor, faces: tor
 # -- convenience -------------------------------------------------------------------------------------
 
 @dataclass(frozen=True)
+class DeferredSettings:
+    """Settings of :func:`render_deferred`.
+
+    smooth: interpolated vertex normals instead of flat face normals; light_dir: (3,) direction towards
+    the light, or None for a headlight (``eye - target``); intensity, ambient: see :func:`shade` (floats
+    or 0-dim tensors, differentiable); antialias: antialias the image and mask (:func:`antialias`, what
+    makes them differentiable at silhouettes); near: see :func:`rasterize`.
+    """
+
+    smooth: bool = False
+    light_dir: torch.Tensor | None = None
+    intensity: float | torch.Tensor = 0.8
+    ambient: float | torch.Tensor = 0.2
+    antialias: bool = True
+    near: float = 1e-3
+
+    def __post_init__(self) -> None:
+        if not self.near > 0:
+            raise InputError(f"deferred settings near: expected a positive value, got {self.near}")
+        if self.light_dir is not None and tuple(self.light_dir.shape) != (3,):
+            raise InputError(f"deferred settings light_dir: expected (3,), got {tuple(self.light_dir.shape)}")
+
+
+@dataclass(frozen=True)
 class Deferred:
     """Outputs of :func:`render_deferred`.
 
@@ -311,23 +342,21 @@ class Deferred:
     raster: Raster
 
 
-def render_deferred(mesh: TriMesh, camera: Camera, *, smooth: bool = False,
-                    light_dir: torch.Tensor | None = None, intensity: float | torch.Tensor = 0.8,
-                    ambient: float | torch.Tensor = 0.2, aa: bool = True, near: float = 1e-3) -> Deferred:
+def render_deferred(mesh: TriMesh, camera: Camera, settings: DeferredSettings | None = None) -> Deferred:
     """Depth, normals, part labels, shaded image and mask of a mesh through the four ops.
 
-    smooth: interpolated vertex normals instead of flat face normals; light_dir: (3,) towards the light
-    (default: from the camera, ``eye - target``); intensity, ambient: see :func:`shade`; aa: antialias the
-    image and mask (:func:`antialias`, differentiable at silhouettes).
+    mesh: verts (V, 3) float (may require grad), faces, groups (part labels); camera: the view;
+    settings: :class:`DeferredSettings` (defaults when None). Outputs follow the dtype and device of
+    ``mesh.verts``.
     """
+    s = settings or DeferredSettings()
     verts, faces = mesh.verts, mesh.faces
-    rast = rasterize(verts, faces, camera, near=near)
-    normal = (vertex_normal_image if smooth else face_normal_image)(verts, faces, rast)
-    if light_dir is None:
-        light_dir = (camera.eye - camera.target).to(verts.dtype)
-    img = shade(normal, rast.mask, light_dir, intensity, ambient)
+    rast = rasterize(verts, faces, camera, near=s.near)
+    normal = (vertex_normal_image if s.smooth else face_normal_image)(verts, faces, rast)
+    light_dir = s.light_dir if s.light_dir is not None else (camera.eye - camera.target)
+    img = shade(normal, rast.mask, light_dir.to(device=verts.device), s.intensity, s.ambient)
     mask = rast.mask.to(verts.dtype)
-    if aa:
+    if s.antialias:
         sil = silhouette_edges(verts, faces, camera)
         both = antialias(torch.stack([img, mask], -1), rast, verts, faces, camera, sil)
         img, mask = both[..., 0], both[..., 1]
