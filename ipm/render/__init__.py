@@ -5,6 +5,9 @@ Shading is kept apart from rasterization: :mod:`~ipm.render.soft` (SoftRas silho
 differentiable), :mod:`~ipm.render.sdf_silhouette` (silhouettes, depth and normals of SDFs),
 :mod:`~ipm.render.raster` (hard z-buffer for evaluation masks, depth, normals, face ids) and
 :mod:`~ipm.render.preview` (Lambert shading into PNG). Camera math lives in :mod:`~ipm.render.camera`.
+:mod:`~ipm.render.deferred` is the differentiable deferred renderer in nvdiffrast's four operations
+(rasterize, interpolate, antialias, shade): depth, normals, part labels and a shaded image whose
+gradients reach the vertex positions, also across silhouette and occlusion edges.
 """
 
 from ipm.render.camera import (
@@ -19,12 +22,13 @@ from ipm.render.camera import (
     save_cameras,
     view_matrix,
 )
+from ipm.render.deferred import DeferredSettings, render_deferred
 from ipm.render.raster import Fragments, hard_mask, rasterize
 from ipm.render.sdf_silhouette import sdf_depth_normals, sdf_silhouette
 from ipm.render.soft import soft_silhouette, soft_silhouettes
 
 __all__ = [
-    "Fragments", "hard_mask", "heldout_views", "input_views", "load_cameras", "look_at_camera",
-    "orbit_camera", "pixel_rays", "project", "projection", "rasterize", "save_cameras", "sdf_depth_normals",
-    "sdf_silhouette", "soft_silhouette", "soft_silhouettes", "view_matrix",
+    "DeferredSettings", "Fragments", "hard_mask", "heldout_views", "input_views", "load_cameras", "look_at_camera",
+    "orbit_camera", "pixel_rays", "project", "projection", "rasterize", "render_deferred", "save_cameras",
+    "sdf_depth_normals", "sdf_silhouette", "soft_silhouette", "soft_silhouettes", "view_matrix",
 ]
