@@ -6,7 +6,10 @@
 3. Scores (protocol v2: the fit scored where it placed the mug): mask IoU on the input views, held-out
    silhouette IoU (16 protocol views), F-score at 0.02 / 0.05, Chamfer-L1 and 3D IoU against the scan;
    overlays and the loss curve.
-4. The universal SDF generator: the shipped trees meshed, their Jacobians checked against float64
+4. Beyond silhouettes (issue #13, begun): a mask of the teal mug in a real ClearGrasp photo from a box
+   (GrabCut), and the fitted mug through the differentiable deferred renderer (shading, depth, normals;
+   the image's gradient with respect to the vertices).
+5. The universal SDF generator: the shipped trees meshed, their Jacobians checked against float64
    finite differences.
 
 Run: ``python -m ipm.cli.demo [OUT_DIR] [--budget N] [--size S]`` (what ``make demo`` does).
@@ -56,6 +59,46 @@ def fit_real_mug(out: Path, budget: int, size: int) -> dict:
     return scores
 
 
+PHOTO = MUG.parent.parent / "photos" / "cleargrasp_cups" / "000000130-opaque-rgb-img.jpg"
+PHOTO_BOX = (380, 255, 600, 495)   # the teal mug (the data README's box)
+
+
+def beyond_silhouettes(out: Path) -> dict:
+    """Issue #13 so far: a photo's mask from a box (GrabCut), and the fitted mug through the differentiable
+    deferred renderer (depth, normals, shading, and the gradient of the image with respect to the vertices)."""
+    from ipm.io.masks import read_photo, write_mask
+    from ipm.io.meshes import load_mesh
+    from ipm.render.camera import heldout_views
+    from ipm.render.deferred import render_deferred
+    from ipm.render.preview import save_png
+    from ipm.segment import box_mask
+
+    folder = out / "beyond_silhouettes"
+    t0 = time.perf_counter()
+    photo = read_photo(PHOTO.resolve())
+    m = box_mask(photo, PHOTO_BOX)
+    mask_s = time.perf_counter() - t0
+    write_mask(folder / "photo_mask.png", m)
+    shown = photo.astype(np.float64)
+    shown[m] = 0.55 * shown[m] + 0.45 * np.array([0.0, 255.0, 0.0])
+    save_png(folder / "photo_mask_overlay.png", shown.round().astype(np.uint8))
+    mesh = load_mesh(out / "mug_fit" / "mesh.obj", normalize=False)
+    verts = mesh.verts.float().requires_grad_(True)
+    t0 = time.perf_counter()
+    r = render_deferred(type(mesh)(verts, mesh.faces), heldout_views(256)[0].to(torch.float32))
+    r.image.sum().backward()
+    render_ms = 1000 * (time.perf_counter() - t0)
+    save_png(folder / "fit_shaded.png", (255 * r.image.detach().clamp(0, 1)).round().byte().numpy())
+    d = r.depth.detach()
+    near, far = float(d[d > 0].min()), float(d.max())
+    save_png(folder / "fit_depth.png", torch.where(d > 0, 255 * (far - d) / max(far - near, 1e-9) * 0.8 + 40, 0)
+             .round().byte().numpy())
+    save_png(folder / "fit_normals.png", ((r.normal.detach() + 1) * 127.5 * (r.mask.detach() > 0)[..., None])
+             .clamp(0, 255).round().byte().numpy())
+    return {"mask_pixels": int(m.sum()), "mask_s": round(mask_s, 2), "faces": mesh.n_faces,
+            "render_ms": round(render_ms, 1), "grad_norm": float(verts.grad.norm())}
+
+
 def sdf_showcase(out: Path) -> dict:
     from ipm.generators import get_generator
     from ipm.io.export import export_mesh
@@ -94,6 +137,11 @@ def main() -> None:
     print(f"  F-score @0.02 / @0.05: {scores['fscore@0.02']:.3f} / {scores['fscore@0.05']:.3f}, "
           f"Chamfer-L1 {scores['chamfer_l1']:.4f}, 3D IoU {scores['iou_3d']:.3f}")
     print(f"  {scores['evaluations']} evaluations in {scores['wall_time_s']} s")
+    print("beyond silhouettes (#13): a photo's mask from a box, and the deferred renderer ...", flush=True)
+    b = beyond_silhouettes(out)
+    print(f"  GrabCut mask of the teal mug in the ClearGrasp photo: {b['mask_pixels']} px in {b['mask_s']} s")
+    print(f"  deferred render of the fit ({b['faces']} faces, 256 px), image + gradient w.r.t. vertices: "
+          f"{b['render_ms']} ms (gradient norm {b['grad_norm']:.3g})")
     print("universal SDF generator: meshes and Jacobians ...", flush=True)
     for name, r in sdf_showcase(out).items():
         print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
@@ -101,6 +149,7 @@ def main() -> None:
     print(f"\nResults: {out.resolve()}")
     print("  mug_fit/overlay_000.png, overlay_001.png (target red, fit green), loss.png, result.json, scores.json")
     print("  mug_masks/ (the input masks), sdf/*.glb and *.png (generator meshes and previews)")
+    print("  beyond_silhouettes/: photo_mask.png and its overlay; the fit's deferred shading, depth and normals")
 
 
 if __name__ == "__main__":
