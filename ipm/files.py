@@ -50,6 +50,22 @@ def read_json(path: str | Path, what: str = "JSON file", *, max_nesting: int = 2
         raise InputError(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno}, column {e.colno}") from None
 
 
+def read_npy(path: str | Path, what: str = "array file"):
+    """The numpy array in a ``.npy`` file (no pickles), numbers only; errors name the file."""
+    import numpy as np
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what} not found: {path}")
+    try:
+        arr = np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as e:
+        raise InputError(f"{what} {path}: expected a .npy array, got an unreadable file ({type(e).__name__})") from None
+    if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiub":
+        raise InputError(f"{what} {path}: expected an array of numbers, got {getattr(arr, 'dtype', type(arr))}")
+    return arr
+
+
 def json_nesting(text: str) -> int:
     """How deeply objects and arrays nest in JSON ``text`` (strings skipped), without parsing it."""
     depth = deepest = 0

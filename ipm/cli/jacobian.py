@@ -35,12 +35,9 @@ MAX_JACOBIAN_BYTES = 2**30
 def _load_points(path: Path) -> np.ndarray:
     import numpy as np
 
-    if not path.is_file():
-        raise UsageError(f"points file not found: {path}")
-    try:
-        pts = np.load(path, allow_pickle=False)
-    except (ValueError, OSError) as e:
-        raise UsageError(f"points file {path}: expected a .npy array of shape (N, 3) ({e})") from None
+    from ipm.files import read_npy
+
+    pts = read_npy(path, "points file")
     if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) == 0:
         raise UsageError(f"points file {path}: expected shape (N, 3) with N >= 1, got {pts.shape}")
     if not np.isfinite(pts).all():

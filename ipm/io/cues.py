@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from ipm.errors import InputError
-from ipm.files import atomic_path, read_json, write_text
+from ipm.files import atomic_path, read_json, read_npy, write_text
 
 PARTS_FILE = "parts.json"
 MAX_DEPTH_MM = 65535          # the largest depth a 16-bit millimetre PNG holds
@@ -101,12 +101,7 @@ def read_depth(path: str | Path, *, png_scale: float = 0.001) -> np.ndarray:
     or <= 0; ``.png``: 0). ``png_scale``: scene units per PNG step (0.001: millimetres to metres)."""
     path = Path(path)
     if path.suffix == ".npy":
-        if not path.is_file():
-            raise InputError(f"depth map not found: {path}")
-        try:
-            d = np.load(path, allow_pickle=False)
-        except (ValueError, OSError) as e:
-            raise InputError(f"depth map {path}: expected a .npy array ({type(e).__name__})") from None
+        d = read_npy(path, "depth map")
         if d.ndim != 2 or d.dtype.kind not in "fiu":
             raise InputError(f"depth map {path}: expected a (H, W) array of numbers, got {d.dtype} {d.shape}")
         d = d.astype(np.float64)
