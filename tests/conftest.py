@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -27,6 +28,41 @@ def require_file(p: Path) -> Path:
 def real_path(rel: str) -> Path:
     """A file under ../shared/data/real (:func:`require_file`)."""
     return require_file(REAL / rel)
+
+
+@contextlib.contextmanager
+def throwaway_member(registry, name: str, module_text: str, tmp_path: Path, monkeypatch, package: str):
+    """A member ``name`` of ``registry`` defined by one new file in a new package (``package/member.py``),
+    the package added to the registry's discovery list: the "one file, no edit elsewhere" promise. On exit
+    the member and the package's modules are forgotten, and the test checks the member is gone."""
+    import importlib
+    import sys
+    import textwrap
+
+    folder = tmp_path / "throwaway_lib" / package
+    folder.mkdir(parents=True)
+    (folder / "__init__.py").write_text("")
+    (folder / "member.py").write_text(textwrap.dedent(module_text))
+    monkeypatch.syspath_prepend(str(folder.parent))
+    importlib.invalidate_caches()
+    monkeypatch.setattr(registry, "packages", [*registry.packages, package])
+    try:
+        yield
+    finally:
+        registry.remove(name)
+        for mod in [m for m in sys.modules if m == package or m.startswith(package + ".")]:
+            del sys.modules[mod]
+    assert name not in registry
+
+
+def run_cli(args, capsys) -> tuple[int, str, str]:
+    """Run ``ipm`` in this process: ``(exit code, stdout, stderr)``; arguments may be paths."""
+    from ipm.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    return e.value.code, out, err
 
 
 @pytest.fixture

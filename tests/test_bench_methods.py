@@ -3,10 +3,8 @@ checked up front by :func:`check_settings` with the same parser the method runs 
 
 from __future__ import annotations
 
-import sys
-import textwrap
-
 import pytest
+from conftest import throwaway_member
 
 from ipm.bench.methods import METHODS, check_settings
 from ipm.errors import InputError
@@ -72,13 +70,7 @@ def test_a_method_in_another_package_is_found_and_runs_in_the_harness(tmp_path, 
     from ipm.bench import harness
     from ipm.bench.config import load_experiment
 
-    pkg = tmp_path / "lib" / "ipm_throwaway_methods"
-    pkg.mkdir(parents=True)
-    (pkg / "__init__.py").write_text("")
-    (pkg / "box.py").write_text(textwrap.dedent(THROWAWAY))
-    monkeypatch.syspath_prepend(str(tmp_path / "lib"))
-    monkeypatch.setattr(METHODS, "packages", [*METHODS.packages, "ipm_throwaway_methods"])
-    try:
+    with throwaway_member(METHODS, "throwaway-box", THROWAWAY, tmp_path, monkeypatch, "ipm_throwaway_methods"):
         assert "throwaway-box" in METHODS
         with pytest.raises(InputError, match="throwaway-box: setting half: expected a number, got 'big'"):
             check_settings("throwaway-box", {"half": "big"})
@@ -89,8 +81,3 @@ def test_a_method_in_another_package_is_found_and_runs_in_the_harness(tmp_path, 
                        '[[methods]]\nname = "box"\nmethod = "throwaway-box"\nhalf = 0.4\n')
         row = harness.run_cell(str(exp.resolve()), load_experiment(exp).cells()[0])
         assert row["status"] == "ok" and row["method"] == "box" and 0.0 < row["heldout_iou"] < 1.0, row
-    finally:
-        METHODS.remove("throwaway-box")
-        for mod in [m for m in sys.modules if m.startswith("ipm_throwaway_methods")]:
-            del sys.modules[mod]
-    assert "throwaway-box" not in METHODS

@@ -7,17 +7,11 @@ import json
 
 import numpy as np
 import pytest
+from conftest import run_cli as run
 from PIL import Image
 
 import ipm
 from ipm.cli import main
-
-
-def run(args, capsys) -> tuple[int, str, str]:
-    with pytest.raises(SystemExit) as exit_:
-        main(args)
-    out = capsys.readouterr()
-    return exit_.value.code, out.out, out.err
 
 
 @pytest.fixture(scope="module")

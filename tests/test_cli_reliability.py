@@ -17,17 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import ROOT, real_path
-
-from ipm.cli import main
+from conftest import run_cli as run
 
 MUG = "vessels/ocrtoc_mug.ply"
 
 
-def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return e.value.code, out, err
 
 
 def _nested_tree(depth: int) -> str:

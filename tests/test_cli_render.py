@@ -11,9 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import ROOT, real_path
+from conftest import run_cli as run
 from PIL import Image
 
-from ipm.cli import main
 from ipm.files import staged_directory
 from ipm.io.masks import load_mask_set, save_mask_set
 from ipm.render.camera import input_views, load_cameras
@@ -21,11 +21,6 @@ from ipm.render.camera import input_views, load_cameras
 MUG = "vessels/probcomp_mug.obj"
 
 
-def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return e.value.code, out, err
 
 
 def assert_usage_error(code, err, *needles):

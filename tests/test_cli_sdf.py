@@ -9,15 +9,7 @@ import sys
 import numpy as np
 import pytest
 import trimesh
-
-from ipm.cli import main
-
-
-def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
-        main(args)
-    out, err = capsys.readouterr()
-    return e.value.code, out, err
+from conftest import run_cli as run
 
 
 def test_list_nodes_json(capsys):

@@ -11,16 +11,9 @@ import numpy as np
 import pytest
 import torch
 import trimesh
+from conftest import run_cli as run
 
-from ipm.cli import main
 from ipm.generators import get_generator
-
-
-def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return e.value.code, out, err
 
 
 @pytest.fixture

@@ -7,18 +7,11 @@ import json
 import numpy as np
 import pytest
 import torch
+from conftest import run_cli as run
 
-from ipm.cli import main
 from ipm.errors import InputError
 from ipm.io import cues
 from ipm.io.masks import load_mask_set
-
-
-def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return e.value.code, out, err
 
 
 def _depth(rng, h=12, w=17):

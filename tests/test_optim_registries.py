@@ -3,12 +3,12 @@
 
 from __future__ import annotations
 
-import importlib
 import sys
 
 import pytest
 import torch
 from boxes import Boxes, boxes_target
+from conftest import throwaway_member
 
 from ipm.errors import InputError
 from ipm.losses import LOSSES
@@ -41,12 +41,6 @@ def l1_loss(pred, target):
 '''
 
 
-def _package(tmp_path, monkeypatch, pkg: str, module: str, text: str):
-    (tmp_path / pkg).mkdir()
-    (tmp_path / pkg / "__init__.py").write_text("")
-    (tmp_path / pkg / f"{module}.py").write_text(text)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    importlib.invalidate_caches()
 
 
 @pytest.fixture(scope="module")
@@ -58,36 +52,23 @@ def test_a_strategy_from_a_new_module(tmp_path, monkeypatch, target):
     name, pkg = "throwaway_first_start", "throwaway_strategies"
     with pytest.raises(InputError, match="discrete search: expected one of"):
         FitSettings(discrete=name).check()
-    _package(tmp_path, monkeypatch, pkg, "first_start", STRATEGY.format(name=name))
-    monkeypatch.setattr(STRATEGIES, "packages", [*STRATEGIES.packages, pkg])
-    try:
+    with throwaway_member(STRATEGIES, name, STRATEGY.format(name=name), tmp_path, monkeypatch, pkg):
         assert name in STRATEGIES.names()
         with pytest.raises(InputError, match=f"expected one of .*{name}"):
             FitSettings(discrete="nope").check()
         res, _, best = run_fit(Boxes(), target, FitSettings(budget=40, discrete=name, seed=0, lr=0.03))
-        calls = sys.modules[f"{pkg}.first_start"].CALLS
+        calls = sys.modules[f"{pkg}.member"].CALLS
         assert len(calls) == 1 and 0 < calls[0] < 40 and res.evaluations == 40
-    finally:
-        STRATEGIES.remove(name)
-        sys.modules.pop(f"{pkg}.first_start", None)
-        sys.modules.pop(pkg, None)
-    assert name not in STRATEGIES
 
 
 def test_a_mask_loss_from_a_new_module(tmp_path, monkeypatch, target):
     name, pkg = "throwaway_l1", "throwaway_losses"
     with pytest.raises(InputError, match="loss: expected one of iou, mse"):
         FitSettings(loss=name).check()
-    _package(tmp_path, monkeypatch, pkg, "l1", LOSS.format(name=name))
-    monkeypatch.setattr(LOSSES, "packages", [*LOSSES.packages, pkg])
-    try:
+    with throwaway_member(LOSSES, name, LOSS.format(name=name), tmp_path, monkeypatch, pkg):
         assert name in LOSSES
         res, _, _ = run_fit(Boxes(), target, FitSettings(budget=30, discrete="none", loss=name, seed=0))
-        assert len(sys.modules[f"{pkg}.l1"].CALLS) == 30 and res.loss < 1.0
-    finally:
-        LOSSES.remove(name)
-        sys.modules.pop(f"{pkg}.l1", None)
-        sys.modules.pop(pkg, None)
+        assert len(sys.modules[f"{pkg}.member"].CALLS) == 30 and res.loss < 1.0
     assert name not in LOSSES
 
 

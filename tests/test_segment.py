@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import REAL, require_file
+from conftest import run_cli as run
 
-from ipm.cli import main
 from ipm.errors import InputError
 from ipm.io.masks import read_mask, read_photo
 from ipm.segment import box_mask, parse_box
@@ -18,11 +18,6 @@ PHOTO = REAL / "photos" / "cleargrasp_cups" / "000000130-opaque-rgb-img.jpg"
 REFERENCE = Path(__file__).parent / "data" / "cleargrasp_teal_mug_polygon.json"
 
 
-def run(args, capsys):
-    with pytest.raises(SystemExit) as e:
-        main([str(a) for a in args])
-    out, err = capsys.readouterr()
-    return e.value.code, out, err
 
 
 def iou(a, b) -> float:

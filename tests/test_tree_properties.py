@@ -7,10 +7,10 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 
 import pytest
 import torch
+from conftest import throwaway_member
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -177,13 +177,7 @@ def TmpBlob(p, r):
 
 
 def test_a_node_type_is_one_file_in_a_registered_package(tmp_path, monkeypatch):
-    pkg = tmp_path / "ipm_throwaway_nodes"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "blob.py").write_text(BLOB)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(NODES, "packages", [*NODES.packages, "ipm_throwaway_nodes"])
-    try:
+    with throwaway_member(NODES, "tmp_blob", BLOB, tmp_path, monkeypatch, "ipm_throwaway_nodes"):
         assert "tmp_blob" in NODES
         cls = NODES.get("tmp_blob")
         assert cls.__doc__.startswith("A throwaway sphere")
@@ -193,11 +187,6 @@ def test_a_node_type_is_one_file_in_a_registered_package(tmp_path, monkeypatch):
         assert same_tree(again.root, tree.root)
         p = torch.tensor([[0.5, 0.0, 0.0], [0.5, 0.4, 0.0]], dtype=torch.float64)
         assert torch.allclose(again.sdf(None, p), torch.tensor([-0.4, 0.0], dtype=torch.float64))
-    finally:
-        NODES.remove("tmp_blob")
-        for mod in [m for m in sys.modules if m.startswith("ipm_throwaway_nodes")]:
-            del sys.modules[mod]
-    assert "tmp_blob" not in NODES
 
 
 CUBE = '''
@@ -214,24 +203,13 @@ class TmpCube(Box):
 
 
 def test_a_mesh_node_type_is_one_file_in_a_registered_package(tmp_path, monkeypatch):
-    pkg = tmp_path / "ipm_throwaway_mesh_nodes"
-    pkg.mkdir()
-    (pkg / "__init__.py").write_text("")
-    (pkg / "cube.py").write_text(CUBE)
-    monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setattr(MESH_NODES, "packages", [*MESH_NODES.packages, "ipm_throwaway_mesh_nodes"])
-    try:
+    with throwaway_member(MESH_NODES, "tmp_cube", CUBE, tmp_path, monkeypatch, "ipm_throwaway_mesh_nodes"):
         assert "tmp_cube" in MESH_NODES
         tree = mesh_tree_from_json({"tree": {"node": "merge", "children": [{"node": "tmp_cube"}, {"node": "box"}]}})
         again = mesh_tree_from_json(json.loads(json.dumps(mesh_tree_to_json(tree))))
         assert same_tree(again.root, tree.root) and again.root.children[0].type_name == "tmp_cube"
         a, b = again.mesh(again.theta(), LOW).verts, tree.mesh(tree.theta(), LOW).verts
         assert torch.equal(a, b) and torch.equal(a[:8], a[8:])
-    finally:
-        MESH_NODES.remove("tmp_cube")
-        for mod in [m for m in sys.modules if m.startswith("ipm_throwaway_mesh_nodes")]:
-            del sys.modules[mod]
-    assert "tmp_cube" not in MESH_NODES
 
 
 # -- the depth limit -------------------------------------------------------------------------------

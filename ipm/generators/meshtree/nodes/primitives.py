@@ -8,6 +8,7 @@ number of segments of round primitives is the level of detail (:class:`MeshLod`)
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 
 import numpy as np
 import torch
@@ -48,9 +49,9 @@ class Frustum(Primitive):
 
     linear = True
 
+    @abstractmethod
     def radii_height(self, th: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``(r_bottom, r_top, height)``, each ``(1,)``, from ``th: (k,)``."""
-        raise NotImplementedError
 
     def verts(self, th, lod):
         r0, r1, h = self.radii_height(th)
