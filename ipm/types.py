@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -90,6 +92,9 @@ class Camera:
 
     eye, target, up: (3,) float tensors; fov_deg: () float tensor, vertical field of view in degrees;
     width, height: image size in pixels. Tensors may require grad (poses and FOV can be fitted).
+    cx, cy: principal point in pixels (x right, y down; pixel ``(i, j)`` has its center at
+    ``(i + 0.5, j + 0.5)``), plain floats; ``None`` is the image center ``width / 2`` (resp.
+    ``height / 2``). Pixels are square: the focal length is ``height / (2 tan(fov / 2))`` on both axes.
     """
 
     eye: torch.Tensor
@@ -98,6 +103,8 @@ class Camera:
     fov_deg: torch.Tensor
     width: int
     height: int
+    cx: float | None = None
+    cy: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("eye", "target", "up"):
@@ -110,9 +117,26 @@ class Camera:
                              f"got {self.width}x{self.height}")
         if not (0.0 < float(fov.detach()) < 180.0):
             raise InputError(f"camera fov_deg: expected a value in (0, 180), got {float(fov.detach())}")
+        for name in ("cx", "cy"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if torch.is_tensor(v) and v.numel() == 1:
+                v = v.detach().item()
+            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
+                raise InputError(f"camera {name}: expected a finite number of pixels or None (the image "
+                                 f"center), got {v!r}")
+            object.__setattr__(self, name, float(v))
+
+    @property
+    def principal_point(self) -> tuple[float, float]:
+        """``(cx, cy)`` in pixels, the image center ``(width / 2, height / 2)`` where unset."""
+        return (self.width / 2 if self.cx is None else self.cx,
+                self.height / 2 if self.cy is None else self.cy)
 
     def to_json(self) -> dict:
-        return {
+        """The cameras.json entry; ``cx``, ``cy`` only when set."""
+        d = {
             "eye": [float(v) for v in self.eye.detach().cpu().tolist()],
             "target": [float(v) for v in self.target.detach().cpu().tolist()],
             "up": [float(v) for v in self.up.detach().cpu().tolist()],
@@ -120,19 +144,25 @@ class Camera:
             "width": int(self.width),
             "height": int(self.height),
         }
+        for name in ("cx", "cy"):
+            if getattr(self, name) is not None:
+                d[name] = getattr(self, name)
+        return d
 
     @staticmethod
     def from_json(d: dict) -> Camera:
         need = ("eye", "target", "up", "fov_deg", "width", "height")
         missing = [k for k in need if k not in d]
         if missing:
-            raise InputError(f"camera entry is missing {', '.join(missing)}; expected fields {', '.join(need)}")
-        return Camera(d["eye"], d["target"], d["up"], d["fov_deg"], int(d["width"]), int(d["height"]))
+            raise InputError(f"camera entry is missing {', '.join(missing)}; expected fields {', '.join(need)} "
+                             f"(and optionally cx, cy)")
+        return Camera(d["eye"], d["target"], d["up"], d["fov_deg"], int(d["width"]), int(d["height"]),
+                      d.get("cx"), d.get("cy"))
 
     def to(self, dtype=None, device=None) -> Camera:
         return Camera(self.eye.to(dtype=dtype, device=device), self.target.to(dtype=dtype, device=device),
                       self.up.to(dtype=dtype, device=device), self.fov_deg.to(dtype=dtype, device=device),
-                      self.width, self.height)
+                      self.width, self.height, self.cx, self.cy)
 
 
 @dataclass(frozen=True)

@@ -41,8 +41,8 @@ def fit_views(masks: np.ndarray, cameras: list[Camera], max_size: int, dtype: to
     """The masks as soft targets (K, h, w) in ``dtype`` and their cameras, reduced by the smallest integer
     factor that divides both image sides and brings the longer one to at most ``max_size`` (box filter:
     a reduced pixel is the covered fraction of its full-size pixels; the camera keeps its field of
-    view, so reduced pixel centers fall on the centers of the full-size blocks). Factor 1 if none
-    divides."""
+    view, so reduced pixel centers fall on the centers of the full-size blocks: reduced coordinates are
+    ``x / f``, and a set principal point becomes ``(cx / f, cy / f)``). Factor 1 if none divides."""
     K, H, W = masks.shape
     dev = cameras[0].eye.device
     target = torch.as_tensor(np.asarray(masks), dtype=dtype, device=dev)
@@ -52,7 +52,8 @@ def fit_views(masks: np.ndarray, cameras: list[Camera], max_size: int, dtype: to
     if f == 1:
         return target, cams
     target = F.avg_pool2d(target[:, None], f)[:, 0]
-    return target, [Camera(c.eye, c.target, c.up, c.fov_deg, W // f, H // f) for c in cams]
+    return target, [Camera(c.eye, c.target, c.up, c.fov_deg, W // f, H // f,
+                           None if c.cx is None else c.cx / f, None if c.cy is None else c.cy / f) for c in cams]
 
 
 def grid_axis(n: int, extent: float, dtype=torch.float64, device=None) -> torch.Tensor:

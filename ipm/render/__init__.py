@@ -11,9 +11,13 @@ gradients reach the vertex positions, also across silhouette and occlusion edges
 """
 
 from ipm.render.camera import (
+    Intrinsics,
+    crop_camera,
     heldout_views,
     input_views,
+    intrinsics_camera,
     load_cameras,
+    load_intrinsics,
     look_at_camera,
     orbit_camera,
     pixel_rays,
@@ -28,7 +32,8 @@ from ipm.render.sdf_silhouette import sdf_depth_normals, sdf_silhouette
 from ipm.render.soft import soft_silhouette, soft_silhouettes
 
 __all__ = [
-    "DeferredSettings", "Fragments", "hard_mask", "heldout_views", "input_views", "load_cameras", "look_at_camera",
-    "orbit_camera", "pixel_rays", "project", "projection", "rasterize", "render_deferred", "save_cameras",
+    "DeferredSettings", "Fragments", "Intrinsics", "crop_camera", "hard_mask", "heldout_views", "input_views",
+    "intrinsics_camera", "load_cameras", "load_intrinsics", "look_at_camera", "orbit_camera", "pixel_rays",
+    "project", "projection", "rasterize", "render_deferred", "save_cameras",
     "sdf_depth_normals", "sdf_silhouette", "soft_silhouette", "soft_silhouettes", "view_matrix",
 ]

@@ -4,7 +4,15 @@ points to pixels, pixel rays, and the evaluation-protocol view sets of DESIGN.md
 Conventions (DESIGN.md): right-handed world, Y up; the camera looks down -Z in camera space (OpenGL);
 vertical field of view in degrees; image row 0 is the top and pixel ``(col i, row j)`` has its center at
 ``(i + 0.5, j + 0.5)``. Screen coordinates are returned as ``(x, y)`` in pixels with x to the right and
-y down; depth is the distance along the viewing axis (positive in front of the camera).
+y down; depth is the distance along the viewing axis (positive in front of the camera). The principal
+point ``(cx, cy)`` (:attr:`Camera.principal_point`) is the image center unless the camera sets it; pixels
+are square, with focal length ``height / (2 tan(fov / 2))`` pixels on both axes.
+
+Known intrinsics (``fx, fy, cx, cy``) of a real camera come in as :class:`Intrinsics`
+(:func:`load_intrinsics` reads JSON and ClearGrasp's YAML) and become cameras through
+:func:`intrinsics_camera`, or ``orbit_camera(..., fov_deg=intr.fov_deg, width=intr.width,
+height=intr.height, cx=intr.cx, cy=intr.cy)``. :func:`crop_camera` is the camera of a window of an image,
+resized.
 
 Everything is differentiable in every camera quantity (eye, target, up, fov) and follows the dtype and
 device of the camera's tensors.
@@ -17,8 +25,11 @@ seen from above), and positive elevation looks down from above.
 from __future__ import annotations
 
 import json
+import logging
 import math
-from collections.abc import Sequence
+import numbers
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -30,6 +41,8 @@ from ipm.types import Camera
 PROTOCOL_FOV_DEG = 40.0
 PROTOCOL_DISTANCE = 3.2
 PROTOCOL_ELEVATION_DEG = 25.0
+
+log = logging.getLogger(__name__)
 
 
 def _as_tensor(x, like: torch.Tensor | None = None, dtype=torch.float64) -> torch.Tensor:
@@ -45,18 +58,19 @@ def _normalize(v: torch.Tensor, eps: float = 1e-12) -> torch.Tensor:
 
 
 def look_at_camera(eye, target, up=(0.0, 1.0, 0.0), fov_deg=PROTOCOL_FOV_DEG, width: int = 256,
-                   height: int | None = None) -> Camera:
+                   height: int | None = None, *, cx: float | None = None, cy: float | None = None) -> Camera:
     """A :class:`~ipm.types.Camera` at ``eye`` looking at ``target``.
 
     eye, target, up: (3,) tensors or sequences (tensors keep their dtype, device and grad);
-    fov_deg: vertical field of view in degrees; width, height: image size (height defaults to width).
+    fov_deg: vertical field of view in degrees; width, height: image size (height defaults to width);
+    cx, cy: principal point in pixels (``None``: the image center).
     Raises ``InputError`` when eye == target or up is parallel to the viewing direction.
     """
     eye_t = _as_tensor(eye)
     target_t = _as_tensor(target, eye_t)
     up_t = _as_tensor(up, eye_t)
     fov_t = _as_tensor(fov_deg, eye_t)
-    cam = Camera(eye_t, target_t, up_t, fov_t, int(width), int(height if height is not None else width))
+    cam = Camera(eye_t, target_t, up_t, fov_t, int(width), int(height if height is not None else width), cx, cy)
     check_camera(cam)
     return cam
 
@@ -89,11 +103,14 @@ def orbit_eye(azimuth_deg, elevation_deg, distance, target=(0.0, 0.0, 0.0)) -> t
 
 
 def orbit_camera(azimuth_deg, elevation_deg, distance=PROTOCOL_DISTANCE, target=(0.0, 0.0, 0.0),
-                 fov_deg=PROTOCOL_FOV_DEG, width: int = 256, height: int | None = None) -> Camera:
+                 fov_deg=PROTOCOL_FOV_DEG, width: int = 256, height: int | None = None, *,
+                 cx: float | None = None, cy: float | None = None) -> Camera:
     """A camera on an orbit around ``target``, Y up, looking at ``target``.
 
     azimuth_deg, elevation_deg, distance, fov_deg: floats or 0-dim tensors (differentiable);
-    target: (3,). Raises ``InputError`` for |elevation| >= 90° or distance <= 0.
+    target: (3,); cx, cy: principal point in pixels (``None``: the image center). With known
+    intrinsics: ``orbit_camera(az, el, d, fov_deg=intr.fov_deg, width=intr.width, height=intr.height,
+    cx=intr.cx, cy=intr.cy)``. Raises ``InputError`` for |elevation| >= 90° or distance <= 0.
     """
     el = float(torch.as_tensor(elevation_deg).detach())
     if not abs(el) < 90.0:
@@ -104,13 +121,13 @@ def orbit_camera(azimuth_deg, elevation_deg, distance=PROTOCOL_DISTANCE, target=
     eye = orbit_eye(azimuth_deg, elevation_deg, distance, target)
     tgt = _as_tensor(target, eye)
     up = torch.tensor([0.0, 1.0, 0.0], dtype=eye.dtype, device=eye.device)
-    return look_at_camera(eye, tgt, up, _as_tensor(fov_deg, eye), width, height)
+    return look_at_camera(eye, tgt, up, _as_tensor(fov_deg, eye), width, height, cx=cx, cy=cy)
 
 
 def detach_camera(cam: Camera) -> Camera:
     """The same camera with its tensors detached from any autograd graph."""
     return Camera(cam.eye.detach(), cam.target.detach(), cam.up.detach(), cam.fov_deg.detach(),
-                  cam.width, cam.height)
+                  cam.width, cam.height, cam.cx, cam.cy)
 
 
 def camera_frame(cam: Camera) -> torch.Tensor:
@@ -131,16 +148,22 @@ def view_matrix(cam: Camera) -> torch.Tensor:
 
 
 def projection(cam: Camera, near: float = 0.01, far: float = 100.0) -> torch.Tensor:
-    """OpenGL perspective projection matrix (4, 4): camera space to clip space (NDC in [-1, 1]^3)."""
+    """OpenGL perspective projection matrix (4, 4): camera space to clip space (NDC in [-1, 1]^3).
+
+    NDC x = -1 is the left image edge and y = +1 the top one, so pixel ``x = (x_ndc + 1) W / 2``,
+    ``y = (1 - y_ndc) H / 2``. An off-center principal point adds the usual third-column terms
+    ``1 - 2 cx / W`` and ``2 cy / H - 1`` (zero for the image center).
+    """
     if not 0 < near < far:
         raise InputError(f"projection: expected 0 < near < far, got near={near}, far={far}")
     f = 1.0 / torch.tan(torch.deg2rad(cam.fov_deg.to(cam.eye.dtype)) / 2)
     aspect = cam.width / cam.height
+    cx, cy = cam.principal_point
     zero = torch.zeros((), dtype=f.dtype, device=f.device)
     one = zero + 1.0
     rows = [
-        torch.stack([f / aspect, zero, zero, zero]),
-        torch.stack([zero, f, zero, zero]),
+        torch.stack([f / aspect, zero, zero + (1.0 - 2.0 * cx / cam.width), zero]),
+        torch.stack([zero, f, zero + (2.0 * cy / cam.height - 1.0), zero]),
         torch.stack([zero, zero, zero + (far + near) / (near - far), zero + 2 * far * near / (near - far)]),
         torch.stack([zero, zero, -one, zero]),
     ]
@@ -162,8 +185,9 @@ def project(points: torch.Tensor, cam: Camera, eps: float = 1e-9) -> tuple[torch
     """Project world points to pixels.
 
     points: (..., 3) float. Returns ``(xy (..., 2), depth (...))``: pixel coordinates (x right, y down,
-    pixel centers at +0.5) and depth along the viewing axis (positive in front of the camera). Points
-    at or behind the camera get meaningless pixel coordinates; check ``depth > 0``.
+    pixel centers at +0.5, the camera axis at the principal point) and depth along the viewing axis
+    (positive in front of the camera). Points at or behind the camera get meaningless pixel coordinates;
+    check ``depth > 0``.
     """
     if points.shape[-1:] != (3,):
         raise InputError(f"project: expected points (..., 3), got {tuple(points.shape)}")
@@ -171,8 +195,9 @@ def project(points: torch.Tensor, cam: Camera, eps: float = 1e-9) -> tuple[torch
     depth = -pc[..., 2]
     fpx = focal_pixels(cam).to(points.dtype)
     inv = 1.0 / torch.where(depth.abs() > eps, depth, torch.full_like(depth, eps))
-    x = cam.width / 2 + fpx * pc[..., 0] * inv
-    y = cam.height / 2 - fpx * pc[..., 1] * inv
+    cx, cy = cam.principal_point
+    x = cx + fpx * pc[..., 0] * inv
+    y = cy - fpx * pc[..., 1] * inv
     return torch.stack([x, y], dim=-1), depth
 
 
@@ -187,12 +212,185 @@ def pixel_rays(cam: Camera, dtype=None) -> tuple[torch.Tensor, torch.Tensor]:
     fpx = focal_pixels(cam).to(dtype)
     xs = torch.arange(cam.width, dtype=dtype, device=dev) + 0.5
     ys = torch.arange(cam.height, dtype=dtype, device=dev) + 0.5
-    u = (xs - cam.width / 2) / fpx
-    v = -(ys - cam.height / 2) / fpx
+    cx, cy = cam.principal_point
+    u = (xs - cx) / fpx
+    v = -(ys - cy) / fpx
     d_cam = torch.stack(torch.broadcast_tensors(u[None, :], v[:, None], -torch.ones_like(v)[:, None]), -1)
     R = camera_frame(cam).to(dtype)
     d = _normalize(d_cam @ R)
     return cam.eye.to(dtype), d
+
+
+# -- known intrinsics and crops ---------------------------------------------------------------------
+
+NON_SQUARE_TOLERANCE = 0.01  # relative |fx - fy| accepted as square pixels (the camera then uses fy)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    """Pinhole intrinsics of a real camera, in pixels: focal lengths ``fx, fy``, principal point
+    ``cx, cy`` (pixel ``(i, j)`` has its center at ``(i + 0.5, j + 0.5)``) and the image size.
+
+    ipm's cameras have square pixels, so ``fx`` and ``fy`` must agree within 1 % (relative to the larger);
+    ``InputError`` beyond. Within the tolerance but different, the camera uses ``fy`` (it fixes the
+    vertical field of view, :attr:`fov_deg`), ``fx`` is ignored and a warning is logged.
+    """
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        for name in ("fx", "fy", "cx", "cy"):
+            v = getattr(self, name)
+            if not _is_number(v):
+                raise InputError(f"intrinsics {name}: expected a finite number of pixels, got {v!r}")
+            object.__setattr__(self, name, float(v))
+        for name in ("fx", "fy"):
+            if not getattr(self, name) > 0:
+                raise InputError(f"intrinsics {name}: expected a positive focal length in pixels, "
+                                 f"got {getattr(self, name)!r}")
+        for name in ("width", "height"):
+            v = getattr(self, name)
+            if not (_is_number(v) and float(v).is_integer() and v > 0):
+                raise InputError(f"intrinsics {name}: expected a positive integer number of pixels, got {v!r}")
+            object.__setattr__(self, name, int(v))
+        fx, fy = self.fx, self.fy
+        rel = abs(fx - fy) / max(fx, fy)
+        if rel > NON_SQUARE_TOLERANCE:
+            raise InputError(f"non-square pixels are not supported: fx={fx:g}, fy={fy:g}; expected fx within "
+                             f"1% of fy")
+        if rel > 0:
+            log.warning("intrinsics: fx=%g and fy=%g differ by %.3g%%; using fy (square pixels)",
+                        fx, fy, 100 * rel)
+
+    @property
+    def fov_deg(self) -> float:
+        """Vertical field of view in degrees, ``2 atan(height / (2 fy))``."""
+        return math.degrees(2.0 * math.atan(self.height / (2.0 * self.fy)))
+
+    @property
+    def K(self) -> list[list[float]]:
+        """The 3x3 calibration matrix ``[[fx, 0, cx], [0, fy, cy], [0, 0, 1]]``."""
+        return [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]]
+
+
+def intrinsics_camera(intr: Intrinsics, eye, target, up=(0.0, 1.0, 0.0)) -> Camera:
+    """A camera with the intrinsics ``intr`` at ``eye`` looking at ``target`` (see :func:`look_at_camera`;
+    the focal length is ``intr.fy``)."""
+    return look_at_camera(eye, target, up, intr.fov_deg, intr.width, intr.height, cx=intr.cx, cy=intr.cy)
+
+
+def crop_camera(cam: Camera, x0: int, y0: int, width: int, height: int, scale: float = 1.0) -> Camera:
+    """The camera whose image is the pixel window ``[x0, x0 + width) x [y0, y0 + height)`` of ``cam``'s
+    image, resized by ``scale``.
+
+    Pixel coordinates map exactly by ``x' = (x - x0) * scale``, ``y' = (y - y0) * scale`` (pixel
+    corners, not centers: pixel ``(i, j)`` has its center at ``(i + 0.5, j + 0.5)`` in both images),
+    so the focal length in pixels becomes ``focal * scale`` and the principal point
+    ``((cx - x0) * scale, (cy - y0) * scale)``. The new image is ``round(width * scale)`` x
+    ``round(height * scale)`` pixels (at least 1); when ``width * scale`` or ``height * scale`` is not an
+    integer the new image covers the window up to less than half a new pixel at its right or bottom edge
+    (the pixels stay square, with the one scale). The vertical field of view is recomputed from the new
+    height and focal length (differentiable in the camera's fov). x0, y0: integers (may lie outside
+    the image); width, height: positive integers; scale: a positive finite number.
+    """
+    for name, v in (("x0", x0), ("y0", y0), ("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise InputError(f"crop_camera {name}: expected an integer number of pixels, got {v!r}")
+    if width < 1 or height < 1:
+        raise InputError(f"crop_camera: expected a window of positive size, got {width}x{height}")
+    if not (_is_number(scale) and scale > 0):
+        raise InputError(f"crop_camera scale: expected a positive finite number, got {scale!r}")
+    new_w, new_h = max(1, round(width * scale)), max(1, round(height * scale))
+    f_new = focal_pixels(cam) * scale
+    fov = torch.rad2deg(2 * torch.atan(new_h / (2 * f_new)))
+    cx, cy = cam.principal_point
+    return Camera(cam.eye, cam.target, cam.up, fov, new_w, new_h, (cx - int(x0)) * scale, (cy - int(y0)) * scale)
+
+
+def _intrinsics_from_mapping(data: object, where: str) -> Intrinsics:
+    """:class:`Intrinsics` from parsed JSON or YAML: ``fx, fy, cx, cy`` or a 3x3 ``K``, and the size as
+    ``width, height`` or ``xres, yres``. ``where`` prefixes the messages."""
+    expected = ("expected fx, fy, cx, cy (or a 3x3 K) and width, height (or xres, yres)")
+    if not isinstance(data, dict):
+        got = "an empty file" if data is None else type(data).__name__
+        raise InputError(f"{where}: {expected}, got {got}")
+    vals = {}
+    if "K" in data:
+        if any(k in data for k in ("fx", "fy", "cx", "cy")):
+            raise InputError(f"{where}: expected either K or fx, fy, cx, cy, got both")
+        K = data["K"]
+        if not (isinstance(K, list) and len(K) == 3
+                and all(isinstance(r, list) and len(r) == 3 and all(_is_number(x) for x in r) for r in K)):
+            raise InputError(f"{where}: K: expected a 3x3 list of numbers, got {K!r}")
+        if K[0][1] != 0 or K[1][0] != 0 or K[2] != [0, 0, 1]:
+            raise InputError(f"{where}: K: expected [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (no skew), got {K!r}")
+        vals = {"fx": K[0][0], "fy": K[1][1], "cx": K[0][2], "cy": K[1][2]}
+    else:
+        for k in ("fx", "fy", "cx", "cy"):
+            if k not in data:
+                raise InputError(f"{where}: missing {k}; {expected}")
+            vals[k] = data[k]
+    for k, alt in (("width", "xres"), ("height", "yres")):
+        if k in data:
+            vals[k] = data[k]
+        elif alt in data:
+            vals[k] = data[alt]
+        else:
+            raise InputError(f"{where}: missing {k} (or {alt}); {expected}")
+    try:
+        return Intrinsics(**vals)
+    except InputError as e:
+        raise InputError(f"{where}: {e}") from None
+
+
+def _parse_json_intrinsics(path: Path, what: str) -> object:
+    from ipm.files import read_json
+
+    return read_json(path, what)
+
+
+def _parse_yaml_intrinsics(path: Path, what: str) -> object:
+    import yaml
+
+    from ipm.files import read_text
+
+    text = read_text(path, what)
+    try:
+        return yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        raise InputError(f"{what} {path}: expected YAML, got a parse error: {' '.join(str(e).split())}") from None
+
+
+INTRINSICS_FORMATS: dict[str, Callable[[Path, str], object]] = {
+    ".json": _parse_json_intrinsics,
+    ".yaml": _parse_yaml_intrinsics,
+    ".yml": _parse_yaml_intrinsics,
+}
+
+
+def load_intrinsics(path: str | Path) -> Intrinsics:
+    """Camera intrinsics from a file, by suffix:
+
+    - ``.json``: ``{"fx", "fy", "cx", "cy", "width", "height"}``, or ``{"K": [[fx, 0, cx], [0, fy, cy],
+      [0, 0, 1]], "width", "height"}``;
+    - ``.yaml`` / ``.yml``: the same keys, or ClearGrasp's ``camera_intrinsics.yaml`` (``fx fy cx cy xres
+      yres``, comments and other keys allowed).
+
+    Values in pixels (see :class:`Intrinsics` for the checks). Raises ``InputError`` naming the file on a
+    missing or unreadable file, an unknown suffix, a parse error, a missing key or a bad value.
+    """
+    path = Path(path)
+    what = "intrinsics file"
+    parse = INTRINSICS_FORMATS.get(path.suffix.lower())
+    if parse is None:
+        raise InputError(f"{what} {path}: expected a {', '.join(INTRINSICS_FORMATS)} file, "
+                         f"got suffix {path.suffix or '(none)'!r}")
+    return _intrinsics_from_mapping(parse(path, what), f"{what} {path}")
 
 
 def input_view_azimuths(k: int) -> list[float]:
@@ -230,7 +428,8 @@ def _check_size(size: int) -> None:
 # -- cameras.json ------------------------------------------------------------------------------------
 
 def cameras_to_json(cameras: Sequence[Camera]) -> str:
-    """cameras.json text: a JSON list with one ``{eye, target, up, fov_deg, width, height}`` per view."""
+    """cameras.json text: a JSON list with one ``{eye, target, up, fov_deg, width, height}`` per view, plus
+    ``cx, cy`` (principal point, pixels) for cameras that set them."""
     return json.dumps([c.to_json() for c in cameras], indent=2) + "\n"
 
 
@@ -260,6 +459,9 @@ def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera
                     raise InputError(f"{key}: expected an integer, got {entry[key]!r}")
             if "fov_deg" in entry and not _is_number(entry["fov_deg"]):
                 raise InputError(f"fov_deg: expected a number, got {entry['fov_deg']!r}")
+            for key in ("cx", "cy"):
+                if key in entry and not _is_number(entry[key]):
+                    raise InputError(f"{key}: expected a number of pixels, got {entry[key]!r}")
             cam = Camera.from_json(entry)
             check_camera(cam)
         except InputError as e:
@@ -269,7 +471,7 @@ def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera
 
 
 def _is_number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+    return isinstance(x, numbers.Real) and not isinstance(x, bool) and math.isfinite(x)
 
 
 def save_cameras(path: str | Path, cameras: Sequence[Camera]) -> Path:

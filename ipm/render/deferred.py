@@ -19,7 +19,8 @@ split a differentiable renderer into a few composable operations; we follow it:
 :func:`render_deferred` strings them together for a :class:`~ipm.types.TriMesh`.
 
 Barycentrics (op 1). With the camera at the origin of camera space, the ray through a pixel center has
-direction ``d = ((x - W/2)/f, -(y - H/2)/f, -1)`` and it meets the plane of the triangle ``P0 P1 P2`` at
+direction ``d = ((x - cx)/f, -(y - cy)/f, -1)`` (principal point ``(cx, cy)``, the image center unless
+the camera sets it) and it meets the plane of the triangle ``P0 P1 P2`` at
 the point whose barycentrics are proportional to the signed volumes of the tetrahedra it spans with the
 edges: ``b_i ∝ d · (P_j × P_k)`` for ``(i, j, k)`` cyclic, with sum ``d · ((P1 - P0) × (P2 - P0))``
 (Cramer's rule on the ray-plane system in triple-product form, as in
@@ -81,7 +82,8 @@ def rasterize(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, *, near:
     f = focal_pixels(camera).to(dt)
     x = (pix % W).to(dt) + 0.5
     y = torch.div(pix, W, rounding_mode="floor").to(dt) + 0.5
-    d = torch.stack([(x - W / 2) / f, -(y - H / 2) / f, -torch.ones_like(x)], -1)  # (N, 3)
+    cx, cy = camera.principal_point
+    d = torch.stack([(x - cx) / f, -(y - cy) / f, -torch.ones_like(x)], -1)  # (N, 3)
     p0, p1, p2 = pc[tri[:, 0]], pc[tri[:, 1]], pc[tri[:, 2]]
     w = torch.stack([
         (d * torch.linalg.cross(p1, p2)).sum(-1),
