@@ -1,7 +1,8 @@
 """Mask sets: a folder with ``view_000.png``, ``view_001.png``, ... and ``cameras.json`` (DESIGN.md).
 
 Masks are 8-bit PNG, foreground > 127. ``cameras.json`` is a JSON list with one entry per view:
-``{eye, target, up, fov_deg, width, height}``. :func:`load_mask_set` checks everything a fitter relies
+``{eye, target, up, fov_deg, width, height}`` (optionally ``cx, cy``, the principal point in pixels).
+:func:`load_mask_set` checks everything a fitter relies
 on and raises ``ValueError`` with the file at fault ("expected ..., got ..."); :func:`save_mask_set`
 writes atomically, and :func:`staged_directory` makes a whole folder of outputs appear at once or not at
 all.
