@@ -2,10 +2,9 @@
 
 Masks are 8-bit PNG, foreground > 127. ``cameras.json`` is a JSON list with one entry per view:
 ``{eye, target, up, fov_deg, width, height}`` (optionally ``cx, cy``, the principal point in pixels).
-:func:`load_mask_set` checks everything a fitter relies
-on and raises ``ValueError`` with the file at fault ("expected ..., got ..."); :func:`save_mask_set`
-writes atomically, and :func:`staged_directory` makes a whole folder of outputs appear at once or not at
-all.
+:func:`load_mask_set` checks everything a fitter relies on and raises ``ValueError`` with the file at
+fault ("expected ..., got ..."); :func:`save_mask_set` writes atomically, and :func:`staged_directory`
+makes a whole folder of outputs appear at once or not at all.
 """
 
 from __future__ import annotations
