@@ -44,7 +44,9 @@ from __future__ import annotations
 import logging
 import math
 import os
+import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import torch
 
@@ -155,7 +157,7 @@ def _backward_kernel(gS: torch.Tensor, base: torch.Tensor, kidx: torch.Tensor, u
 
 
 _KERNELS: dict[str, tuple[Callable, Callable]] = {"eager": (_forward_kernel, _backward_kernel)}
-BACKENDS = ("eager", "compiled")
+BACKENDS = ("native", "eager", "compiled")
 
 
 def _kernels(backend: str) -> tuple[Callable, Callable]:
@@ -211,6 +213,304 @@ class _SoftLogSum(torch.autograd.Function):
             grad.index_add_(0, tri, (start + end).transpose(0, 1))
         return grad, None, None, None, None, None, None
 
+class _SoftLogSumNative(torch.autograd.Function):
+    """S (H, W) = per pixel, the sum over nearby triangles of log(1 - D), by the C kernel (backend
+    "native"); differentiable in tri_xy (F, 3, 2). The backward pass recomputes the pairs (no storage)."""
+
+    @staticmethod
+    def forward(ctx, tri_xy, width, height, sigma, radius):
+        lib = _native_lib()
+        far = 1e3 * (max(width, height) + 2 + radius)  # as span_rows: only guard non-finite values
+        t = tri_xy.detach().nan_to_num(far, far, -far).clamp(-far, far).contiguous()
+        fn = lib.soft_f if t.dtype == torch.float32 else lib.soft_d
+        n = _native_threads(t.shape[0])
+        S = torch.zeros(n, height * width, dtype=t.dtype)
+        _native_map(n, t.shape[0], lambda k, lo, hi: fn(t.data_ptr(), lo, hi, width, height, radius, sigma,
+                                                          S[k].data_ptr(), None, None))
+        ctx.tri, ctx.args = t, (width, height, radius, sigma)
+        return (S.sum(0) if n > 1 else S[0]).view(height, width)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, gS):
+        lib = _native_lib()
+        t, (width, height, radius, sigma) = ctx.tri, ctx.args
+        fn = lib.soft_f if t.dtype == torch.float32 else lib.soft_d
+        gS = gS.to(t.dtype).contiguous()
+        grad = torch.empty_like(t)
+        n = _native_threads(t.shape[0])
+        _native_map(n, t.shape[0], lambda k, lo, hi: fn(t.data_ptr(), lo, hi, width, height, radius, sigma,
+                                                          None, gS.data_ptr(), grad.data_ptr()))
+        return grad, None, None, None, None
+
+
+def _native_threads(n_tri: int) -> int:
+    return max(1, min(torch.get_num_threads(), n_tri // 256))
+
+
+_POOL: list = []  # [ThreadPoolExecutor, workers]
+
+
+def _native_map(n: int, n_tri: int, call: Callable[[int, int, int], object]) -> None:
+    """Run ``call(k, lo, hi)`` for n contiguous ranges of triangles, in parallel (ctypes releases the GIL)."""
+    bounds = [n_tri * k // n for k in range(n + 1)]
+    if n == 1:
+        call(0, 0, n_tri)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+
+    with _LOCK:
+        if not _POOL or _POOL[1] < n - 1:
+            _POOL[:] = [ThreadPoolExecutor(max_workers=n - 1, thread_name_prefix="ipm-soft"), n - 1]
+        pool = _POOL[0]
+    futures = [pool.submit(call, k, bounds[k], bounds[k + 1]) for k in range(1, n)]
+    call(0, bounds[0], bounds[1])
+    for f in futures:
+        f.result()
+
+
+_LOCK = threading.Lock()
+_NATIVE: list = []  # [the loaded library, or None when it cannot be built]
+# compile flags: vectorized exp and log need -ffast-math at compile time (glibc's libmvec); the link
+# step goes without it (it would set flush-to-zero for the whole process); plain -O3 as the fallback
+_NATIVE_FLAGS = ((["-O3", "-march=native", "-ffast-math", "-fopenmp-simd"], ["-lmvec", "-lm"]),
+                 (["-O3", "-march=native"], ["-lm"]), (["-O2"], ["-lm"]))
+
+
+def native_available() -> bool:
+    """Whether the C kernel of backend "native" is built (builds it on first use: a C compiler, ``$CC``
+    or ``cc``, about a second; cached under ``$IPM_CACHE_DIR`` or ``~/.cache/ipm``)."""
+    return _native_lib() is not None
+
+
+def _native_lib():
+    with _LOCK:
+        if not _NATIVE:
+            try:
+                _NATIVE.append(_build_native())
+            except (OSError, RuntimeError) as e:
+                log.info("soft silhouette: the native kernel is unavailable (%s); using eager", e)
+                _NATIVE.append(None)
+        return _NATIVE[0]
+
+
+def _build_native():
+    import ctypes
+    import hashlib
+    import platform
+    import shutil
+    import subprocess
+    import tempfile
+
+    cc = os.environ.get("CC", "cc")
+    if shutil.which(cc) is None:
+        raise RuntimeError(f"no C compiler {cc!r}")
+    src = "".join(_NATIVE_INSTANCE.format(real=r, suffix=x, exp=e, log=lg, tiny=tn) + _NATIVE_C
+                  for r, x, e, lg, tn in (("float", "f", "expf", "logf", "1.0842021724855044e-19f"),
+                                          ("double", "d", "exp", "log", "1.4916681462400413e-154")))
+    cpu = ""
+    try:
+        cpu = next((ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")), "")
+    except OSError:
+        pass
+    key = hashlib.sha256("\0".join([src, cc, repr(_NATIVE_FLAGS), cpu, platform.machine()]).encode())
+    cache = Path(os.environ.get("IPM_CACHE_DIR") or Path.home() / ".cache" / "ipm")
+    lib = cache / f"soft_native_{key.hexdigest()[:16]}.so"
+    if not lib.is_file():
+        cache.mkdir(parents=True, exist_ok=True)
+        errors = []
+        with tempfile.TemporaryDirectory(dir=cache) as tmp:
+            (Path(tmp) / "soft.c").write_text(src)
+            for cflags, libs in _NATIVE_FLAGS:
+                obj, so = Path(tmp) / "soft.o", Path(tmp) / "soft.so"
+                r = subprocess.run([cc, *cflags, "-fPIC", "-c", str(Path(tmp) / "soft.c"), "-o", str(obj)],
+                                   capture_output=True, text=True)
+                if r.returncode == 0:
+                    r = subprocess.run([cc, "-shared", str(obj), "-o", str(so), *libs], capture_output=True,
+                                       text=True)
+                if r.returncode == 0:
+                    os.replace(so, lib)  # atomic: concurrent builders write the same file
+                    break
+                errors.append(r.stderr.strip().splitlines()[-1:] or ["?"])
+            else:
+                raise RuntimeError(f"{cc} failed: {errors}")
+        log.info("soft silhouette: built the native kernel %s", lib)
+    dll = ctypes.CDLL(str(lib))
+    for fn in (dll.soft_f, dll.soft_d):
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int, ctypes.c_int,
+                       ctypes.c_double, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+        fn.restype = None
+    return dll
+
+
+_NATIVE_INSTANCE = """
+#undef REAL
+#undef NAME
+#undef EXP
+#undef LOG
+#undef TINY
+#undef PAIR_GEOMETRY
+#define REAL {real}
+#define NAME(x) x##_{suffix}
+#define EXP {exp}
+#define LOG {log}
+#define TINY {tiny}
+"""
+
+_NATIVE_C = r"""/* The soft silhouette's pair loop in C (ipm/render/soft.py, backend "native"): one triangle at a time,
+   its pairs gathered row by row into a buffer that one loop evaluates (vectorized by the compiler).
+   Compiled once per REAL (float, double); the formulas are those of the eager kernels. */
+#include <math.h>
+#include <stdint.h>
+
+#define CAP 256
+
+typedef struct { REAL ax[3], ay[3], ox[3], c1[3], t1[3], vyi[3], vx[3], vy[3]; } NAME(Edges);
+
+static void NAME(edges_of)(const REAL *p, NAME(Edges) *E) {
+    REAL vx[3], vy[3];
+    for (int e = 0; e < 3; e++) {
+        vx[e] = p[2 * ((e + 1) % 3)] - p[2 * e];
+        vy[e] = p[2 * ((e + 1) % 3) + 1] - p[2 * e + 1];
+    }
+    REAL o = (vx[0] * vy[1] - vy[0] * vx[1]) < 0 ? -1 : 1;
+    for (int e = 0; e < 3; e++) {
+        REAL n2 = vx[e] * vx[e] + vy[e] * vy[e];
+        REAL inv = 1 / (n2 > TINY ? n2 : TINY);
+        E->ax[e] = p[2 * e]; E->ay[e] = p[2 * e + 1];
+        E->ox[e] = o * vx[e]; E->c1[e] = -o * vy[e];
+        E->t1[e] = vx[e] * inv; E->vyi[e] = vy[e] * inv;
+        E->vx[e] = vx[e]; E->vy[e] = vy[e];
+    }
+}
+
+/* rows j0 .. j1 within reach of the triangle (the count; <= 0 for none) */
+static int64_t NAME(rows_of)(const REAL *p, double r, int H, int64_t *j0, int64_t *j1) {
+    double ymin = fmin(p[1], fmin(p[3], p[5])), ymax = fmax(p[1], fmax(p[3], p[5]));
+    double a = ceil(ymin - r - 0.5), b = floor(ymax + r - 0.5);
+    if (a > H - 1 || b < 0) return 0;
+    *j0 = a < 0 ? 0 : (int64_t)a;
+    *j1 = b > H - 1 ? H - 1 : (int64_t)b;
+    return *j1 - *j0 + 1;
+}
+
+/* columns i0 .. i1 of the row at yc within reach: the x-extent of the triangle inside the slab
+   |y - yc| <= r (attained on its edges clipped to the slab), widened by r; 0 if none */
+static int NAME(cols_of)(const REAL *p, double yc, double r, int W, int64_t *i0, int64_t *i1) {
+    double lo = INFINITY, hi = -INFINITY, y0 = yc - r, y1 = yc + r;
+    for (int e = 0; e < 3; e++) {
+        double ax = p[2 * e], ay = p[2 * e + 1], bx = p[2 * ((e + 1) % 3)], by = p[2 * ((e + 1) % 3) + 1];
+        double dy = by - ay, s0, s1;
+        if (dy == 0) {
+            if (ay < y0 || ay > y1) continue;
+            s0 = 0; s1 = 1;
+        } else {
+            s0 = (y0 - ay) / dy; s1 = (y1 - ay) / dy;
+            if (s0 > s1) { double s = s0; s0 = s1; s1 = s; }
+            s0 = s0 < 0 ? 0 : s0;
+            s1 = s1 > 1 ? 1 : s1;
+            if (s0 > s1) continue;
+        }
+        double xa = ax + s0 * (bx - ax), xb = ax + s1 * (bx - ax);
+        lo = fmin(lo, fmin(xa, xb));
+        hi = fmax(hi, fmax(xa, xb));
+    }
+    if (!(lo <= hi)) return 0;
+    double a = ceil(lo - r - 0.5), b = floor(hi + r - 0.5);
+    if (a > W - 1 || b < 0) return 0;
+    *i0 = a < 0 ? 0 : (int64_t)a;
+    *i1 = b > W - 1 ? W - 1 : (int64_t)b;
+    return 1;
+}
+
+/* per pair k: the nearest edge (squared distance best, index near, its t and w = (bwx, bwy)), whether
+   the pixel is inside, whether it is within reach (keep), x = best / sigma and u = exp(-x) */
+#define PAIR_GEOMETRY                                                                              \
+    REAL best = 0, bt = 0, bwx = 0, bwy = 0, cmin = 0;                                             \
+    int near = 0;                                                                                  \
+    for (int e = 0; e < 3; e++) {                                                                  \
+        REAL x0 = px[k] - E->ax[e], dy = py[k] - E->ay[e];                                         \
+        REAL c = E->ox[e] * dy + E->c1[e] * x0;                                                    \
+        REAL t = x0 * E->t1[e] + dy * E->vyi[e];                                                   \
+        t = t < 0 ? 0 : (t > 1 ? 1 : t);                                                           \
+        REAL wx = x0 - t * E->vx[e], wy = dy - t * E->vy[e];                                       \
+        REAL d2 = wx * wx + wy * wy;                                                               \
+        int take = e == 0 || d2 < best;                                                            \
+        best = take ? d2 : best; bt = take ? t : bt; bwx = take ? wx : bwx; bwy = take ? wy : bwy; \
+        near = take ? e : near;                                                                    \
+        cmin = (e == 0 || c < cmin) ? c : cmin;                                                    \
+    }                                                                                              \
+    REAL inside = cmin >= 0 ? 1 : 0;                                                               \
+    REAL keep = (cmin >= 0 || best <= r2) ? 1 : 0;                                                 \
+    REAL x = best * inv_sigma;                                                                     \
+    REAL u = EXP(-(x < 80 ? x : 80));
+
+static void NAME(fwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
+                            int n, REAL r2, REAL inv_sigma, REAL *S) {
+    REAL term[CAP];
+#pragma omp simd
+    for (int k = 0; k < n; k++) {
+        PAIR_GEOMETRY
+        term[k] = -keep * (LOG(1 + u) + inside * x);
+    }
+    for (int k = 0; k < n; k++) S[idx[k]] += term[k];
+}
+
+static void NAME(bwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
+                            int n, REAL r2, REAL inv_sigma, const REAL *gS, REAL *g) {
+    REAL gk[CAP];
+    for (int k = 0; k < n; k++) gk[k] = gS[idx[k]];
+    REAL sx0 = 0, sy0 = 0, tx0 = 0, ty0 = 0, sx1 = 0, sy1 = 0, tx1 = 0, ty1 = 0;
+    REAL sx2 = 0, sy2 = 0, tx2 = 0, ty2 = 0;
+#pragma omp simd reduction(+ : sx0, sy0, tx0, ty0, sx1, sy1, tx1, ty1, sx2, sy2, tx2, ty2)
+    for (int k = 0; k < n; k++) {
+        PAIR_GEOMETRY
+        REAL gg = keep * gk[k] * ((u / (1 + u) - inside) * (-2 * inv_sigma));  /* -2 dL/d(d^2) */
+        REAL ux = gg * bwx, uy = gg * bwy;
+        REAL m0 = near == 0 ? 1 : 0, m1 = near == 1 ? 1 : 0, m2 = near == 2 ? 1 : 0;
+        sx0 += m0 * ux; sy0 += m0 * uy; tx0 += m0 * ux * bt; ty0 += m0 * uy * bt;
+        sx1 += m1 * ux; sy1 += m1 * uy; tx1 += m1 * ux * bt; ty1 += m1 * uy * bt;
+        sx2 += m2 * ux; sy2 += m2 * uy; tx2 += m2 * ux * bt; ty2 += m2 * uy * bt;
+    }
+    /* edge e runs from vertex e to vertex e + 1: d(d^2) = -2 w . ((1 - t) da + t db) */
+    g[0] += sx0 - tx0 + tx2; g[1] += sy0 - ty0 + ty2;
+    g[2] += sx1 - tx1 + tx0; g[3] += sy1 - ty1 + ty0;
+    g[4] += sx2 - tx2 + tx1; g[5] += sy2 - ty2 + ty1;
+}
+
+/* Triangles lo .. hi - 1 of tri (F, 3, 2). Forward (gS == 0): S (H * W) += per pixel, the sum of
+   log(1 - D). Backward: grad rows lo .. hi - 1 = d(sum_p gS[p] S[p]) / d tri. */
+void NAME(soft)(const REAL *tri, int64_t lo, int64_t hi, int W, int H, double r, double sigma, REAL *S,
+                const REAL *gS, REAL *grad) {
+    REAL px[CAP], py[CAP];
+    int64_t idx[CAP];
+    REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma);
+    for (int64_t f = lo; f < hi; f++) {
+        const REAL *p = tri + 6 * f;
+        REAL *g = gS ? grad + 6 * f : 0;
+        if (g) for (int q = 0; q < 6; q++) g[q] = 0;
+        int64_t j0, j1, i0, i1;
+        if (NAME(rows_of)(p, r, H, &j0, &j1) <= 0) continue;
+        NAME(Edges) E;
+        NAME(edges_of)(p, &E);
+        int n = 0;
+        for (int64_t j = j0; j <= j1; j++) {
+            if (!NAME(cols_of)(p, (double)j + 0.5, r, W, &i0, &i1)) continue;
+            for (int64_t i = i0; i <= i1; i++) {
+                px[n] = (REAL)i + (REAL)0.5; py[n] = (REAL)j + (REAL)0.5; idx[n] = j * W + i;
+                if (++n == CAP) {
+                    if (g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
+                    else NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
+                    n = 0;
+                }
+            }
+        }
+        if (n && g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
+        else if (n) NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
+    }
+}
+"""
+
 
 def blur_radius(sigma: float, eps: float) -> float:
     """Distance (pixels) beyond which ``D = sigmoid(-d^2 / sigma) < eps``."""
@@ -227,12 +527,13 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
     sigma: blur in squared pixels (at distance ``sqrt(sigma)`` px outside a triangle, D = sigmoid(-1));
     eps: pairs with ``D < eps`` are skipped (the dense formula differs by about eps per pixel at most);
     near: faces with a vertex nearer than this (world units along the view axis) are dropped;
-    chunk: pairs evaluated at once (bounds memory); backend: "eager" or "compiled" (torch.compile),
-    default ``$IPM_SOFT_BACKEND`` or "eager".
+    chunk: pairs evaluated at once (bounds memory; eager and compiled); backend: "native" (the C kernel;
+    float32 and float64 on the CPU, else and without a C compiler "eager"), "eager" or "compiled"
+    (torch.compile), default ``$IPM_SOFT_BACKEND`` or "native".
     Returns a tensor with the dtype and device of ``verts``.
     """
     check_mesh_tensors(verts, faces)
-    backend = backend or os.environ.get("IPM_SOFT_BACKEND", "eager")
+    backend = backend or os.environ.get("IPM_SOFT_BACKEND") or "native"
     if backend not in BACKENDS:
         raise InputError(f"backend: expected one of {', '.join(BACKENDS)}, got {backend!r}")
     if not sigma > 0:
@@ -241,6 +542,12 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
         raise InputError(f"eps: expected a cutoff in (0, 0.5), got {eps}")
     W, H = int(camera.width), int(camera.height)
     tri, _, _ = visible_triangles(verts, faces, camera, near)
+    if backend == "native":
+        if (verts.device.type == "cpu" and verts.dtype in (torch.float32, torch.float64)
+                and _native_lib() is not None):
+            S = _SoftLogSumNative.apply(tri, W, H, float(sigma), blur_radius(sigma, eps))
+            return -torch.expm1(S)
+        backend = "eager"
     groups, kept = span_rows(tri, blur_radius(sigma, eps), W, H, backend)
     if not groups:
         return verts.sum() * 0 + torch.zeros(H, W, dtype=verts.dtype, device=verts.device)
