@@ -364,6 +364,7 @@ _NATIVE_C = r"""/* The soft silhouette's pair loop in C (ipm/render/soft.py, bac
 #include <stdint.h>
 
 #define CAP 256
+#define VEC 16  /* divides CAP */
 
 typedef struct { REAL ax[3], ay[3], ox[3], c1[3], t1[3], vyi[3], vx[3], vy[3]; } NAME(Edges);
 
@@ -394,26 +395,38 @@ static int64_t NAME(rows_of)(const REAL *p, double r, int H, int64_t *j0, int64_
     return *j1 - *j0 + 1;
 }
 
+/* the edges for cols_of: start x, start y, dx, 1 / dy (0 for flat edges), flat */
+typedef struct { double ax[3], ay[3], dx[3], inv_dy[3]; int flat[3]; } NAME(Slab);
+
+static void NAME(slab_of)(const REAL *p, NAME(Slab) *L) {
+    for (int e = 0; e < 3; e++) {
+        double ax = p[2 * e], ay = p[2 * e + 1], dy = p[2 * ((e + 1) % 3) + 1] - ay;
+        L->ax[e] = ax; L->ay[e] = ay; L->dx[e] = p[2 * ((e + 1) % 3)] - ax;
+        L->flat[e] = dy == 0;
+        L->inv_dy[e] = dy == 0 ? 0 : 1 / dy;
+    }
+}
+
 /* columns i0 .. i1 of the row at yc within reach: the x-extent of the triangle inside the slab
    |y - yc| <= r (attained on its edges clipped to the slab), widened by r; 0 if none */
-static int NAME(cols_of)(const REAL *p, double yc, double r, int W, int64_t *i0, int64_t *i1) {
+static int NAME(cols_of)(const NAME(Slab) *L, double yc, double r, int W, int64_t *i0, int64_t *i1) {
     double lo = INFINITY, hi = -INFINITY, y0 = yc - r, y1 = yc + r;
     for (int e = 0; e < 3; e++) {
-        double ax = p[2 * e], ay = p[2 * e + 1], bx = p[2 * ((e + 1) % 3)], by = p[2 * ((e + 1) % 3) + 1];
-        double dy = by - ay, s0, s1;
-        if (dy == 0) {
+        double ay = L->ay[e], s0, s1;
+        if (L->flat[e]) {
             if (ay < y0 || ay > y1) continue;
             s0 = 0; s1 = 1;
         } else {
-            s0 = (y0 - ay) / dy; s1 = (y1 - ay) / dy;
+            s0 = (y0 - ay) * L->inv_dy[e]; s1 = (y1 - ay) * L->inv_dy[e];
             if (s0 > s1) { double s = s0; s0 = s1; s1 = s; }
             s0 = s0 < 0 ? 0 : s0;
             s1 = s1 > 1 ? 1 : s1;
             if (s0 > s1) continue;
         }
-        double xa = ax + s0 * (bx - ax), xb = ax + s1 * (bx - ax);
-        lo = fmin(lo, fmin(xa, xb));
-        hi = fmax(hi, fmax(xa, xb));
+        double xa = L->ax[e] + s0 * L->dx[e], xb = L->ax[e] + s1 * L->dx[e];
+        if (xa > xb) { double x = xa; xa = xb; xb = x; }
+        lo = xa < lo ? xa : lo;
+        hi = xb > hi ? xb : hi;
     }
     if (!(lo <= hi)) return 0;
     double a = ceil(lo - r - 0.5), b = floor(hi + r - 0.5);
@@ -441,15 +454,18 @@ static int NAME(cols_of)(const REAL *p, double yc, double r, int W, int64_t *i0,
         cmin = (e == 0 || c < cmin) ? c : cmin;                                                    \
     }                                                                                              \
     REAL inside = cmin >= 0 ? 1 : 0;                                                               \
-    REAL keep = (cmin >= 0 || best <= r2) ? 1 : 0;                                                 \
+    REAL keep = (cmin >= 0 || best <= r2) && k < n ? 1 : 0;                                                 \
     REAL x = best * inv_sigma;                                                                     \
     REAL u = EXP(-(x < 80 ? x : 80));
 
+/* the buffers hold n pairs; loops run to m, n rounded up to whole vectors (no scalar remainder: it
+   would call the scalar exp and log), the pairs past n count for nothing */
 static void NAME(fwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
                             int n, REAL r2, REAL inv_sigma, REAL *S) {
     REAL term[CAP];
+    int m = (n + VEC - 1) / VEC * VEC;
 #pragma omp simd
-    for (int k = 0; k < n; k++) {
+    for (int k = 0; k < m; k++) {
         PAIR_GEOMETRY
         term[k] = -keep * (LOG(1 + u) + inside * x);
     }
@@ -459,11 +475,13 @@ static void NAME(fwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py
 static void NAME(bwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
                             int n, REAL r2, REAL inv_sigma, const REAL *gS, REAL *g) {
     REAL gk[CAP];
+    int m = (n + VEC - 1) / VEC * VEC;
     for (int k = 0; k < n; k++) gk[k] = gS[idx[k]];
+    for (int k = n; k < m; k++) gk[k] = 0;
     REAL sx0 = 0, sy0 = 0, tx0 = 0, ty0 = 0, sx1 = 0, sy1 = 0, tx1 = 0, ty1 = 0;
     REAL sx2 = 0, sy2 = 0, tx2 = 0, ty2 = 0;
 #pragma omp simd reduction(+ : sx0, sy0, tx0, ty0, sx1, sy1, tx1, ty1, sx2, sy2, tx2, ty2)
-    for (int k = 0; k < n; k++) {
+    for (int k = 0; k < m; k++) {
         PAIR_GEOMETRY
         REAL gg = keep * gk[k] * ((u / (1 + u) - inside) * (-2 * inv_sigma));  /* -2 dL/d(d^2) */
         REAL ux = gg * bwx, uy = gg * bwy;
@@ -482,7 +500,7 @@ static void NAME(bwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py
    log(1 - D). Backward: grad rows lo .. hi - 1 = d(sum_p gS[p] S[p]) / d tri. */
 void NAME(soft)(const REAL *tri, int64_t lo, int64_t hi, int W, int H, double r, double sigma, REAL *S,
                 const REAL *gS, REAL *grad) {
-    REAL px[CAP], py[CAP];
+    REAL px[CAP] = {0}, py[CAP] = {0};
     int64_t idx[CAP];
     REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma);
     for (int64_t f = lo; f < hi; f++) {
@@ -493,9 +511,11 @@ void NAME(soft)(const REAL *tri, int64_t lo, int64_t hi, int W, int H, double r,
         if (NAME(rows_of)(p, r, H, &j0, &j1) <= 0) continue;
         NAME(Edges) E;
         NAME(edges_of)(p, &E);
+        NAME(Slab) L;
+        NAME(slab_of)(p, &L);
         int n = 0;
         for (int64_t j = j0; j <= j1; j++) {
-            if (!NAME(cols_of)(p, (double)j + 0.5, r, W, &i0, &i1)) continue;
+            if (!NAME(cols_of)(&L, (double)j + 0.5, r, W, &i0, &i1)) continue;
             for (int64_t i = i0; i <= i1; i++) {
                 px[n] = (REAL)i + (REAL)0.5; py[n] = (REAL)j + (REAL)0.5; idx[n] = j * W + i;
                 if (++n == CAP) {
