@@ -2,17 +2,18 @@
 vertex positions of the scanned mug decimated to 10k faces (the mesh of :mod:`benchmarks.bench_render`),
 seen from the protocol's first input view, at 128^2 and 256^2, with 1 and 2 threads each.
 
-ipm: :func:`ipm.render.soft.soft_silhouette` (sigma 1 px^2, float32, default backend), loss = sum of
-the image times fixed random weights, ``backward()``. Mitsuba 3 (variant ``llvm_ad_rgb``): the mesh as an
-area emitter (radiance 1) on a black background, integrator ``direct_projective`` with ``sppi = 0`` (no
-indirect discontinuities: only the silhouette term and the continuous part), 4 samples per pixel, box
-pixel filter, a perspective sensor with the same eye, target, up, vertical fov (``fov_axis = 'y'``) and
-size; per repetition the vertex positions are set and marked for gradients (``params.update()``, which
-is what every step of a fit pays: Mitsuba rebuilds its BVH), then render, the same weighted loss,
-``dr.backward`` and the gradient read back as a NumPy array.
+ipm: :func:`ipm.render.soft.soft_silhouette` (sigma 1 px^2, float32; the default backend "native",
+and "eager" for comparison), loss = sum of the image times fixed random weights, ``backward()``.
+Mitsuba 3 (variant ``llvm_ad_rgb``): the mesh as an area emitter (radiance 1) on a black background,
+integrator ``direct_projective`` with ``sppi = 0`` (no indirect discontinuities: only the silhouette
+term and the continuous part), 4 samples per pixel, box pixel filter, a perspective sensor with the same
+eye, target, up, vertical fov (``fov_axis = 'y'``) and size; per repetition the vertex positions are set
+and marked for gradients (``params.update()``, which is what every step of a fit pays: Mitsuba rebuilds
+its BVH), then render, the same weighted loss, ``dr.backward`` and the gradient read back as a NumPy
+array.
 
-Repetitions alternate between ipm and Mitsuba so that other jobs on a shared machine slow both down
-alike. Threads: ``torch.set_num_threads`` for ipm, ``drjit.set_thread_count`` for Dr.Jit's pool.
+Repetitions alternate between ipm (native, eager) and Mitsuba so that other jobs on a shared machine
+slow all down alike. Threads: ``torch.set_num_threads`` for ipm, ``drjit.set_thread_count`` for Dr.Jit's pool.
 The sanity check compares Mitsuba's primal image (64 spp, coverage > 0.5) with ipm's exact hard mask
 (IoU). Mitsuba is an optional extra (``pip install mitsuba``): where it does not import, one row says so.
 """
@@ -90,9 +91,10 @@ def _iou(a: np.ndarray, b: np.ndarray) -> float:
 def run(out_dir: Path) -> list[dict]:
     from ipm.render.camera import input_views
     from ipm.render.raster import hard_mask
-    from ipm.render.soft import soft_silhouette
+    from ipm.render.soft import native_available, soft_silhouette
 
     verts, faces, source = _cache[FACES]
+    backend = "native" if native_available() else "eager (no C compiler)"
     threads_before = torch.get_num_threads()
     load_before = _loadavg()
     try:
@@ -123,9 +125,9 @@ def run(out_dir: Path) -> list[dict]:
             check = mi.render(scene, spp=64, seed=1).numpy()[..., 0] > 0.5
             iou = _iou(check, hard_mask(verts, faces, cam).numpy())
 
-            def ipm_step():
+            def ipm_step(backend=None):
                 v = verts.clone().requires_grad_(True)
-                (soft_silhouette(v, faces, cam, sigma=SIGMA) * weight_t).sum().backward()
+                (soft_silhouette(v, faces, cam, sigma=SIGMA, backend=backend) * weight_t).sum().backward()
                 return v.grad
 
             for threads in THREADS:
@@ -134,12 +136,16 @@ def run(out_dir: Path) -> list[dict]:
                 seed = itertools.count()
                 for _ in range(WARMUP):
                     ipm_step()
+                    ipm_step("eager")
                     _mitsuba_step(scene, params, key, flat, weight_m, next(seed))
-                t_ipm, t_mi = [], []
-                for _ in range(REPEAT):  # alternate, so that load hits both alike
+                t_ipm, t_eager, t_mi = [], [], []
+                for _ in range(REPEAT):  # alternate, so that load hits all alike
                     t0 = time.perf_counter()
                     ipm_step()
                     t_ipm.append(time.perf_counter() - t0)
+                    t0 = time.perf_counter()
+                    ipm_step("eager")
+                    t_eager.append(time.perf_counter() - t0)
                     t0 = time.perf_counter()
                     _mitsuba_step(scene, params, key, flat, weight_m, next(seed))
                     t_mi.append(time.perf_counter() - t0)
@@ -149,6 +155,8 @@ def run(out_dir: Path) -> list[dict]:
                        "ipm ms": 1e3 * m_ipm, "best ipm ms": 1e3 * min(t_ipm),
                        "Mitsuba ms": 1e3 * m_mi, "best Mitsuba ms": 1e3 * min(t_mi),
                        "Mitsuba / ipm": ratio, "best / best": min(t_mi) / min(t_ipm),
+                       "ipm eager ms": 1e3 * statistics.median(t_eager), "best ipm eager ms": 1e3 * min(t_eager),
+                       "Mitsuba / ipm eager": m_mi / statistics.median(t_eager),
                        "mask IoU": iou, "load": _loadavg(), "target": "-", "ok": "-"}
                 if size == 128:
                     row["target"], row["ok"] = f">= {TARGET:.0f}x", str(ratio >= TARGET)
@@ -156,11 +164,13 @@ def run(out_dir: Path) -> list[dict]:
     finally:
         tmp.cleanup()
         torch.set_num_threads(threads_before)
-    notes = (f"ipm: soft_silhouette, sigma = {SIGMA} px^2, float32, default backend; Mitsuba: {versions}, "
+    notes = (f"ipm: soft_silhouette, sigma = {SIGMA} px^2, float32, default backend ({backend}; 'ipm eager': "
+             "backend='eager', the pure-torch kernels, as before the native kernel); "
+             f"Mitsuba: {versions}, "
              f"llvm_ad_rgb, direct_projective (sppi = 0), {SPP} spp, box filter, the mesh as an area emitter; "
              "both: forward + backward of sum(image * fixed random weights) w.r.t. the vertex positions "
              f"(Mitsuba's includes params.update(), its BVH rebuild). Median and best of {REPEAT} repetitions "
-             f"after {WARMUP} warm-ups, ipm and Mitsuba alternating. Threads: torch.set_num_threads and "
+             f"after {WARMUP} warm-ups, ipm, ipm eager and Mitsuba alternating. Threads: torch.set_num_threads and "
              "drjit.set_thread_count. mask IoU: Mitsuba's primal image at 64 spp (> 0.5) against ipm's exact "
              f"hard mask. Load average (1 min) before: {load_before}; 'load' is after each row.")
     write_results(out_dir, "mitsuba", "Soft silhouette (ipm) vs Mitsuba 3 (llvm_ad_rgb), forward + backward",

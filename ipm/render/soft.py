@@ -28,9 +28,17 @@ The backward pass is written by hand (a ``torch.autograd.Function``) from the en
 ``w = p - a - t e`` the vector from the nearest point of the nearest edge ``a -> a + e`` (at parameter
 ``t`` in [0, 1]), ``d(d^2) = -2 w . ((1 - t) da + t d(a + e))``.
 
-The pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
+The default backend "native" does steps 2 to 5 in C (:data:`_NATIVE_C`, built with the system's C
+compiler on first use in about a second and cached; loaded with ctypes): per triangle, the pixels of
+each row within the blur radius (from its edges clipped to the row's slab, then the exact distance
+test) are evaluated in vectorized loops and summed per pixel, on torch's OpenMP threads; the backward
+pass recomputes the pairs. Its pair set is the exact one (pairs within the radius), the eager scan's
+also holds the padding of its pieces, so the two differ by about eps per pixel (the cutoff's own error).
+Without a C compiler, or for other dtypes and devices, it falls back to "eager".
+
+The eager pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
 ``torch.compile`` (needs a C++ compiler; the first call compiles for tens of seconds, later calls and
-processes reuse the cache), which fuses each kernel into one loop. The default backend is "eager", or
+processes reuse the cache), which fuses each kernel into one loop. The default backend is "native", or
 the value of the environment variable ``IPM_SOFT_BACKEND``.
 
 Fitting hard masks: where a finely tessellated mesh meets its contour many triangles contribute, so
@@ -215,66 +223,42 @@ class _SoftLogSum(torch.autograd.Function):
 
 class _SoftLogSumNative(torch.autograd.Function):
     """S (H, W) = per pixel, the sum over nearby triangles of log(1 - D), by the C kernel (backend
-    "native"); differentiable in tri_xy (F, 3, 2). The backward pass recomputes the pairs (no storage)."""
+    "native", on torch's OpenMP threads); differentiable in tri_xy (F, 3, 2). The backward pass recomputes
+    the pairs (no storage)."""
 
     @staticmethod
     def forward(ctx, tri_xy, width, height, sigma, radius):
-        lib = _native_lib()
         far = 1e3 * (max(width, height) + 2 + radius)  # as span_rows: only guard non-finite values
         t = tri_xy.detach().nan_to_num(far, far, -far).clamp(-far, far).contiguous()
-        fn = lib.soft_f if t.dtype == torch.float32 else lib.soft_d
-        n = _native_threads(t.shape[0])
+        n = max(1, min(torch.get_num_threads(), t.shape[0] // 256))
         S = torch.zeros(n, height * width, dtype=t.dtype)
-        _native_map(n, t.shape[0], lambda k, lo, hi: fn(t.data_ptr(), lo, hi, width, height, radius, sigma,
-                                                          S[k].data_ptr(), None, None))
+        _native_fn(t)(t.data_ptr(), t.shape[0], width, height, radius, sigma, None, None, None, S.data_ptr(), n)
         ctx.tri, ctx.args = t, (width, height, radius, sigma)
         return (S.sum(0) if n > 1 else S[0]).view(height, width)
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, gS):
-        lib = _native_lib()
         t, (width, height, radius, sigma) = ctx.tri, ctx.args
-        fn = lib.soft_f if t.dtype == torch.float32 else lib.soft_d
         gS = gS.to(t.dtype).contiguous()
-        grad = torch.empty_like(t)
-        n = _native_threads(t.shape[0])
-        _native_map(n, t.shape[0], lambda k, lo, hi: fn(t.data_ptr(), lo, hi, width, height, radius, sigma,
-                                                          None, gS.data_ptr(), grad.data_ptr()))
+        grad = torch.zeros_like(t)
+        n = max(1, min(torch.get_num_threads(), t.shape[0] // 256))
+        _native_fn(t)(t.data_ptr(), t.shape[0], width, height, radius, sigma, None, gS.data_ptr(),
+                      grad.data_ptr(), None, n)
         return grad, None, None, None, None
 
 
-def _native_threads(n_tri: int) -> int:
-    return max(1, min(torch.get_num_threads(), n_tri // 256))
-
-
-_POOL: list = []  # [ThreadPoolExecutor, workers]
-
-
-def _native_map(n: int, n_tri: int, call: Callable[[int, int, int], object]) -> None:
-    """Run ``call(k, lo, hi)`` for n contiguous ranges of triangles, in parallel (ctypes releases the GIL)."""
-    bounds = [n_tri * k // n for k in range(n + 1)]
-    if n == 1:
-        call(0, 0, n_tri)
-        return
-    from concurrent.futures import ThreadPoolExecutor
-
-    with _LOCK:
-        if not _POOL or _POOL[1] < n - 1:
-            _POOL[:] = [ThreadPoolExecutor(max_workers=n - 1, thread_name_prefix="ipm-soft"), n - 1]
-        pool = _POOL[0]
-    futures = [pool.submit(call, k, bounds[k], bounds[k + 1]) for k in range(1, n)]
-    call(0, bounds[0], bounds[1])
-    for f in futures:
-        f.result()
+def _native_fn(t: torch.Tensor):
+    lib = _native_lib()
+    return lib.soft_par_f if t.dtype == torch.float32 else lib.soft_par_d
 
 
 _LOCK = threading.Lock()
 _NATIVE: list = []  # [the loaded library, or None when it cannot be built]
 # compile flags: vectorized exp and log need -ffast-math at compile time (glibc's libmvec); the link
 # step goes without it (it would set flush-to-zero for the whole process); plain -O3 as the fallback
-_NATIVE_FLAGS = ((["-O3", "-march=native", "-ffast-math", "-fopenmp-simd"], ["-lmvec", "-lm"]),
-                 (["-O3", "-march=native"], ["-lm"]), (["-O2"], ["-lm"]))
+_NATIVE_FLAGS = ((["-O3", "-march=native", "-ffast-math", "-fopenmp"], ["-fopenmp", "-lmvec", "-lm"]),
+                 (["-O3", "-march=native", "-fopenmp"], ["-fopenmp", "-lm"]))
 
 
 def native_available() -> bool:
@@ -336,9 +320,10 @@ def _build_native():
                 raise RuntimeError(f"{cc} failed: {errors}")
         log.info("soft silhouette: built the native kernel %s", lib)
     dll = ctypes.CDLL(str(lib))
-    for fn in (dll.soft_f, dll.soft_d):
-        fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int64, ctypes.c_int, ctypes.c_int,
-                       ctypes.c_double, ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p]
+    for fn in (dll.soft_par_f, dll.soft_par_d):
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_int, ctypes.c_double,
+                       ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+                       ctypes.c_int]
         fn.restype = None
     return dll
 
@@ -361,6 +346,7 @@ _NATIVE_C = r"""/* The soft silhouette's pair loop in C (ipm/render/soft.py, bac
    its pairs gathered row by row into a buffer that one loop evaluates (vectorized by the compiler).
    Compiled once per REAL (float, double); the formulas are those of the eager kernels. */
 #include <math.h>
+#include <omp.h>
 #include <stdint.h>
 
 #define CAP 256
@@ -527,6 +513,28 @@ void NAME(soft)(const REAL *tri, int64_t lo, int64_t hi, int W, int H, double r,
         }
         if (n && g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
         else if (n) NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
+    }
+}
+
+/* All F triangles on nt threads of the OpenMP pool (torch's own: the process loads one libgomp), in
+   blocks of 64: the forward pass statically (each thread sums into its own buffer, then the buffers
+   are added in thread order: the same result every run), the backward pass dynamically (each triangle's
+   gradient is its own sum: any schedule gives the same result). */
+void NAME(soft_par)(const REAL *tri, int64_t F, int W, int H, double r, double sigma, REAL *S,
+                    const REAL *gS, REAL *grad, REAL *buffers, int nt) {
+    int64_t nb = (F + 63) / 64;
+    if (gS) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
+        for (int64_t b = 0; b < nb; b++)
+            NAME(soft)(tri, 64 * b, 64 * b + 64 < F ? 64 * b + 64 : F, W, H, r, sigma, 0, gS, grad);
+        return;
+    }
+#pragma omp parallel num_threads(nt)
+    {
+        REAL *mine = buffers + (int64_t)omp_get_thread_num() * W * H;
+#pragma omp for schedule(static, 4)
+        for (int64_t b = 0; b < nb; b++)
+            NAME(soft)(tri, 64 * b, 64 * b + 64 < F ? 64 * b + 64 : F, W, H, r, sigma, mine, 0, 0);
     }
 }
 """
