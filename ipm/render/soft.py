@@ -28,9 +28,17 @@ The backward pass is written by hand (a ``torch.autograd.Function``) from the en
 ``w = p - a - t e`` the vector from the nearest point of the nearest edge ``a -> a + e`` (at parameter
 ``t`` in [0, 1]), ``d(d^2) = -2 w . ((1 - t) da + t d(a + e))``.
 
-The pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
+The default backend "native" does steps 2 to 5 in C (:data:`_NATIVE_C`, built with the system's C
+compiler on first use in about a second and cached; loaded with ctypes): per triangle, the pixels of
+each row within the blur radius (from its edges clipped to the row's slab, then the exact distance
+test) are evaluated in vectorized loops and summed per pixel, on torch's OpenMP threads; the backward
+pass recomputes the pairs. Its pair set is the exact one (pairs within the radius), the eager scan's
+also holds the padding of its pieces, so the two differ by about eps per pixel (the cutoff's own error).
+Without a C compiler, or for other dtypes and devices, it falls back to "eager".
+
+The eager pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
 ``torch.compile`` (needs a C++ compiler; the first call compiles for tens of seconds, later calls and
-processes reuse the cache), which fuses each kernel into one loop. The default backend is "eager", or
+processes reuse the cache), which fuses each kernel into one loop. The default backend is "native", or
 the value of the environment variable ``IPM_SOFT_BACKEND``.
 
 Fitting hard masks: where a finely tessellated mesh meets its contour many triangles contribute, so
@@ -44,7 +52,9 @@ from __future__ import annotations
 import logging
 import math
 import os
+import threading
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import torch
 
@@ -155,7 +165,7 @@ def _backward_kernel(gS: torch.Tensor, base: torch.Tensor, kidx: torch.Tensor, u
 
 
 _KERNELS: dict[str, tuple[Callable, Callable]] = {"eager": (_forward_kernel, _backward_kernel)}
-BACKENDS = ("eager", "compiled")
+BACKENDS = ("native", "eager", "compiled")
 
 
 def _kernels(backend: str) -> tuple[Callable, Callable]:
@@ -211,6 +221,324 @@ class _SoftLogSum(torch.autograd.Function):
             grad.index_add_(0, tri, (start + end).transpose(0, 1))
         return grad, None, None, None, None, None, None
 
+class _SoftLogSumNative(torch.autograd.Function):
+    """S (H, W) = per pixel, the sum over nearby triangles of log(1 - D), by the C kernel (backend
+    "native", on torch's OpenMP threads); differentiable in tri_xy (F, 3, 2). The backward pass recomputes
+    the pairs (no storage)."""
+
+    @staticmethod
+    def forward(ctx, tri_xy, width, height, sigma, radius):
+        far = 1e3 * (max(width, height) + 2 + radius)  # as span_rows: only guard non-finite values
+        t = tri_xy.detach().nan_to_num(far, far, -far).clamp(-far, far).contiguous()
+        n = max(1, min(torch.get_num_threads(), t.shape[0] // 256))
+        S = torch.zeros(n, height * width, dtype=t.dtype)
+        _native_fn(t)(t.data_ptr(), t.shape[0], width, height, radius, sigma, None, None, None, S.data_ptr(), n)
+        ctx.tri, ctx.args = t, (width, height, radius, sigma)
+        return (S.sum(0) if n > 1 else S[0]).view(height, width)
+
+    @staticmethod
+    @torch.autograd.function.once_differentiable
+    def backward(ctx, gS):
+        t, (width, height, radius, sigma) = ctx.tri, ctx.args
+        gS = gS.to(t.dtype).contiguous()
+        grad = torch.zeros_like(t)
+        n = max(1, min(torch.get_num_threads(), t.shape[0] // 256))
+        _native_fn(t)(t.data_ptr(), t.shape[0], width, height, radius, sigma, None, gS.data_ptr(),
+                      grad.data_ptr(), None, n)
+        return grad, None, None, None, None
+
+
+def _native_fn(t: torch.Tensor):
+    lib = _native_lib()
+    return lib.soft_par_f if t.dtype == torch.float32 else lib.soft_par_d
+
+
+_LOCK = threading.Lock()
+_NATIVE: list = []  # [the loaded library, or None when it cannot be built]
+# compile flags: vectorized exp and log need -ffast-math at compile time (glibc's libmvec); the link
+# step goes without it (it would set flush-to-zero for the whole process); plain -O3 as the fallback
+_NATIVE_FLAGS = ((["-O3", "-march=native", "-ffast-math", "-fopenmp"], ["-fopenmp", "-lmvec", "-lm"]),
+                 (["-O3", "-march=native", "-fopenmp"], ["-fopenmp", "-lm"]))
+
+
+def native_available() -> bool:
+    """Whether the C kernel of backend "native" is built (builds it on first use: a C compiler, ``$CC``
+    or ``cc``, about a second; cached under ``$IPM_CACHE_DIR`` or ``~/.cache/ipm``)."""
+    return _native_lib() is not None
+
+
+def _native_lib():
+    with _LOCK:
+        if not _NATIVE:
+            try:
+                _NATIVE.append(_build_native())
+            except (OSError, RuntimeError) as e:
+                log.info("soft silhouette: the native kernel is unavailable (%s); using eager", e)
+                _NATIVE.append(None)
+        return _NATIVE[0]
+
+
+def _build_native():
+    import ctypes
+    import hashlib
+    import platform
+    import shutil
+    import subprocess
+    import tempfile
+
+    cc = os.environ.get("CC", "cc")
+    if shutil.which(cc) is None:
+        raise RuntimeError(f"no C compiler {cc!r}")
+    src = "".join(_NATIVE_INSTANCE.format(real=r, suffix=x, exp=e, log=lg, tiny=tn) + _NATIVE_C
+                  for r, x, e, lg, tn in (("float", "f", "expf", "logf", "1.0842021724855044e-19f"),
+                                          ("double", "d", "exp", "log", "1.4916681462400413e-154")))
+    cpu = ""
+    try:
+        cpu = next((ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")), "")
+    except OSError:
+        pass
+    key = hashlib.sha256("\0".join([src, cc, repr(_NATIVE_FLAGS), cpu, platform.machine()]).encode())
+    cache = Path(os.environ.get("IPM_CACHE_DIR") or Path.home() / ".cache" / "ipm")
+    lib = cache / f"soft_native_{key.hexdigest()[:16]}.so"
+    if not lib.is_file():
+        cache.mkdir(parents=True, exist_ok=True)
+        errors = []
+        with tempfile.TemporaryDirectory(dir=cache) as tmp:
+            (Path(tmp) / "soft.c").write_text(src)
+            for cflags, libs in _NATIVE_FLAGS:
+                obj, so = Path(tmp) / "soft.o", Path(tmp) / "soft.so"
+                r = subprocess.run([cc, *cflags, "-fPIC", "-c", str(Path(tmp) / "soft.c"), "-o", str(obj)],
+                                   capture_output=True, text=True)
+                if r.returncode == 0:
+                    r = subprocess.run([cc, "-shared", str(obj), "-o", str(so), *libs], capture_output=True,
+                                       text=True)
+                if r.returncode == 0:
+                    os.replace(so, lib)  # atomic: concurrent builders write the same file
+                    break
+                errors.append(r.stderr.strip().splitlines()[-1:] or ["?"])
+            else:
+                raise RuntimeError(f"{cc} failed: {errors}")
+        log.info("soft silhouette: built the native kernel %s", lib)
+    dll = ctypes.CDLL(str(lib))
+    for fn in (dll.soft_par_f, dll.soft_par_d):
+        fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_int, ctypes.c_double,
+                       ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
+                       ctypes.c_int]
+        fn.restype = None
+    return dll
+
+
+_NATIVE_INSTANCE = """
+#undef REAL
+#undef NAME
+#undef EXP
+#undef LOG
+#undef TINY
+#undef PAIR_GEOMETRY
+#define REAL {real}
+#define NAME(x) x##_{suffix}
+#define EXP {exp}
+#define LOG {log}
+#define TINY {tiny}
+"""
+
+_NATIVE_C = r"""/* The soft silhouette's pair loop in C (ipm/render/soft.py, backend "native"): one triangle at a time,
+   its pairs gathered row by row into a buffer that one loop evaluates (vectorized by the compiler).
+   Compiled once per REAL (float, double); the formulas are those of the eager kernels. */
+#include <math.h>
+#include <omp.h>
+#include <stdint.h>
+
+#define CAP 256
+#define VEC 16  /* divides CAP */
+
+typedef struct { REAL ax[3], ay[3], ox[3], c1[3], t1[3], vyi[3], vx[3], vy[3]; } NAME(Edges);
+
+static void NAME(edges_of)(const REAL *p, NAME(Edges) *E) {
+    REAL vx[3], vy[3];
+    for (int e = 0; e < 3; e++) {
+        vx[e] = p[2 * ((e + 1) % 3)] - p[2 * e];
+        vy[e] = p[2 * ((e + 1) % 3) + 1] - p[2 * e + 1];
+    }
+    REAL o = (vx[0] * vy[1] - vy[0] * vx[1]) < 0 ? -1 : 1;
+    for (int e = 0; e < 3; e++) {
+        REAL n2 = vx[e] * vx[e] + vy[e] * vy[e];
+        REAL inv = 1 / (n2 > TINY ? n2 : TINY);
+        E->ax[e] = p[2 * e]; E->ay[e] = p[2 * e + 1];
+        E->ox[e] = o * vx[e]; E->c1[e] = -o * vy[e];
+        E->t1[e] = vx[e] * inv; E->vyi[e] = vy[e] * inv;
+        E->vx[e] = vx[e]; E->vy[e] = vy[e];
+    }
+}
+
+/* rows j0 .. j1 within reach of the triangle (the count; <= 0 for none) */
+static int64_t NAME(rows_of)(const REAL *p, double r, int H, int64_t *j0, int64_t *j1) {
+    double ymin = fmin(p[1], fmin(p[3], p[5])), ymax = fmax(p[1], fmax(p[3], p[5]));
+    double a = ceil(ymin - r - 0.5), b = floor(ymax + r - 0.5);
+    if (a > H - 1 || b < 0) return 0;
+    *j0 = a < 0 ? 0 : (int64_t)a;
+    *j1 = b > H - 1 ? H - 1 : (int64_t)b;
+    return *j1 - *j0 + 1;
+}
+
+/* the edges for cols_of: start x, start y, dx, 1 / dy (0 for flat edges), flat */
+typedef struct { double ax[3], ay[3], dx[3], inv_dy[3]; int flat[3]; } NAME(Slab);
+
+static void NAME(slab_of)(const REAL *p, NAME(Slab) *L) {
+    for (int e = 0; e < 3; e++) {
+        double ax = p[2 * e], ay = p[2 * e + 1], dy = p[2 * ((e + 1) % 3) + 1] - ay;
+        L->ax[e] = ax; L->ay[e] = ay; L->dx[e] = p[2 * ((e + 1) % 3)] - ax;
+        L->flat[e] = dy == 0;
+        L->inv_dy[e] = dy == 0 ? 0 : 1 / dy;
+    }
+}
+
+/* columns i0 .. i1 of the row at yc within reach: the x-extent of the triangle inside the slab
+   |y - yc| <= r (attained on its edges clipped to the slab), widened by r; 0 if none */
+static int NAME(cols_of)(const NAME(Slab) *L, double yc, double r, int W, int64_t *i0, int64_t *i1) {
+    double lo = INFINITY, hi = -INFINITY, y0 = yc - r, y1 = yc + r;
+    for (int e = 0; e < 3; e++) {
+        double ay = L->ay[e], s0, s1;
+        if (L->flat[e]) {
+            if (ay < y0 || ay > y1) continue;
+            s0 = 0; s1 = 1;
+        } else {
+            s0 = (y0 - ay) * L->inv_dy[e]; s1 = (y1 - ay) * L->inv_dy[e];
+            if (s0 > s1) { double s = s0; s0 = s1; s1 = s; }
+            s0 = s0 < 0 ? 0 : s0;
+            s1 = s1 > 1 ? 1 : s1;
+            if (s0 > s1) continue;
+        }
+        double xa = L->ax[e] + s0 * L->dx[e], xb = L->ax[e] + s1 * L->dx[e];
+        if (xa > xb) { double x = xa; xa = xb; xb = x; }
+        lo = xa < lo ? xa : lo;
+        hi = xb > hi ? xb : hi;
+    }
+    if (!(lo <= hi)) return 0;
+    double a = ceil(lo - r - 0.5), b = floor(hi + r - 0.5);
+    if (a > W - 1 || b < 0) return 0;
+    *i0 = a < 0 ? 0 : (int64_t)a;
+    *i1 = b > W - 1 ? W - 1 : (int64_t)b;
+    return 1;
+}
+
+/* per pair k: the nearest edge (squared distance best, index near, its t and w = (bwx, bwy)), whether
+   the pixel is inside, whether it is within reach (keep), x = best / sigma and u = exp(-x) */
+#define PAIR_GEOMETRY                                                                              \
+    REAL best = 0, bt = 0, bwx = 0, bwy = 0, cmin = 0;                                             \
+    int near = 0;                                                                                  \
+    for (int e = 0; e < 3; e++) {                                                                  \
+        REAL x0 = px[k] - E->ax[e], dy = py[k] - E->ay[e];                                         \
+        REAL c = E->ox[e] * dy + E->c1[e] * x0;                                                    \
+        REAL t = x0 * E->t1[e] + dy * E->vyi[e];                                                   \
+        t = t < 0 ? 0 : (t > 1 ? 1 : t);                                                           \
+        REAL wx = x0 - t * E->vx[e], wy = dy - t * E->vy[e];                                       \
+        REAL d2 = wx * wx + wy * wy;                                                               \
+        int take = e == 0 || d2 < best;                                                            \
+        best = take ? d2 : best; bt = take ? t : bt; bwx = take ? wx : bwx; bwy = take ? wy : bwy; \
+        near = take ? e : near;                                                                    \
+        cmin = (e == 0 || c < cmin) ? c : cmin;                                                    \
+    }                                                                                              \
+    REAL inside = cmin >= 0 ? 1 : 0;                                                               \
+    REAL keep = (cmin >= 0 || best <= r2) && k < n ? 1 : 0;                                                 \
+    REAL x = best * inv_sigma;                                                                     \
+    REAL u = EXP(-(x < 80 ? x : 80));
+
+/* the buffers hold n pairs; loops run to m, n rounded up to whole vectors (no scalar remainder: it
+   would call the scalar exp and log), the pairs past n count for nothing */
+static void NAME(fwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
+                            int n, REAL r2, REAL inv_sigma, REAL *S) {
+    REAL term[CAP];
+    int m = (n + VEC - 1) / VEC * VEC;
+#pragma omp simd
+    for (int k = 0; k < m; k++) {
+        PAIR_GEOMETRY
+        term[k] = -keep * (LOG(1 + u) + inside * x);
+    }
+    for (int k = 0; k < n; k++) S[idx[k]] += term[k];
+}
+
+static void NAME(bwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
+                            int n, REAL r2, REAL inv_sigma, const REAL *gS, REAL *g) {
+    REAL gk[CAP];
+    int m = (n + VEC - 1) / VEC * VEC;
+    for (int k = 0; k < n; k++) gk[k] = gS[idx[k]];
+    for (int k = n; k < m; k++) gk[k] = 0;
+    REAL sx0 = 0, sy0 = 0, tx0 = 0, ty0 = 0, sx1 = 0, sy1 = 0, tx1 = 0, ty1 = 0;
+    REAL sx2 = 0, sy2 = 0, tx2 = 0, ty2 = 0;
+#pragma omp simd reduction(+ : sx0, sy0, tx0, ty0, sx1, sy1, tx1, ty1, sx2, sy2, tx2, ty2)
+    for (int k = 0; k < m; k++) {
+        PAIR_GEOMETRY
+        REAL gg = keep * gk[k] * ((u / (1 + u) - inside) * (-2 * inv_sigma));  /* -2 dL/d(d^2) */
+        REAL ux = gg * bwx, uy = gg * bwy;
+        REAL m0 = near == 0 ? 1 : 0, m1 = near == 1 ? 1 : 0, m2 = near == 2 ? 1 : 0;
+        sx0 += m0 * ux; sy0 += m0 * uy; tx0 += m0 * ux * bt; ty0 += m0 * uy * bt;
+        sx1 += m1 * ux; sy1 += m1 * uy; tx1 += m1 * ux * bt; ty1 += m1 * uy * bt;
+        sx2 += m2 * ux; sy2 += m2 * uy; tx2 += m2 * ux * bt; ty2 += m2 * uy * bt;
+    }
+    /* edge e runs from vertex e to vertex e + 1: d(d^2) = -2 w . ((1 - t) da + t db) */
+    g[0] += sx0 - tx0 + tx2; g[1] += sy0 - ty0 + ty2;
+    g[2] += sx1 - tx1 + tx0; g[3] += sy1 - ty1 + ty0;
+    g[4] += sx2 - tx2 + tx1; g[5] += sy2 - ty2 + ty1;
+}
+
+/* Triangles lo .. hi - 1 of tri (F, 3, 2). Forward (gS == 0): S (H * W) += per pixel, the sum of
+   log(1 - D). Backward: grad rows lo .. hi - 1 = d(sum_p gS[p] S[p]) / d tri. */
+void NAME(soft)(const REAL *tri, int64_t lo, int64_t hi, int W, int H, double r, double sigma, REAL *S,
+                const REAL *gS, REAL *grad) {
+    REAL px[CAP] = {0}, py[CAP] = {0};
+    int64_t idx[CAP];
+    REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma);
+    for (int64_t f = lo; f < hi; f++) {
+        const REAL *p = tri + 6 * f;
+        REAL *g = gS ? grad + 6 * f : 0;
+        if (g) for (int q = 0; q < 6; q++) g[q] = 0;
+        int64_t j0, j1, i0, i1;
+        if (NAME(rows_of)(p, r, H, &j0, &j1) <= 0) continue;
+        NAME(Edges) E;
+        NAME(edges_of)(p, &E);
+        NAME(Slab) L;
+        NAME(slab_of)(p, &L);
+        int n = 0;
+        for (int64_t j = j0; j <= j1; j++) {
+            if (!NAME(cols_of)(&L, (double)j + 0.5, r, W, &i0, &i1)) continue;
+            for (int64_t i = i0; i <= i1; i++) {
+                px[n] = (REAL)i + (REAL)0.5; py[n] = (REAL)j + (REAL)0.5; idx[n] = j * W + i;
+                if (++n == CAP) {
+                    if (g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
+                    else NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
+                    n = 0;
+                }
+            }
+        }
+        if (n && g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
+        else if (n) NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
+    }
+}
+
+/* All F triangles on nt threads of the OpenMP pool (torch's own: the process loads one libgomp), in
+   blocks of 64: the forward pass statically (each thread sums into its own buffer, then the buffers
+   are added in thread order: the same result every run), the backward pass dynamically (each triangle's
+   gradient is its own sum: any schedule gives the same result). */
+void NAME(soft_par)(const REAL *tri, int64_t F, int W, int H, double r, double sigma, REAL *S,
+                    const REAL *gS, REAL *grad, REAL *buffers, int nt) {
+    int64_t nb = (F + 63) / 64;
+    if (gS) {
+#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
+        for (int64_t b = 0; b < nb; b++)
+            NAME(soft)(tri, 64 * b, 64 * b + 64 < F ? 64 * b + 64 : F, W, H, r, sigma, 0, gS, grad);
+        return;
+    }
+#pragma omp parallel num_threads(nt)
+    {
+        REAL *mine = buffers + (int64_t)omp_get_thread_num() * W * H;
+#pragma omp for schedule(static, 4)
+        for (int64_t b = 0; b < nb; b++)
+            NAME(soft)(tri, 64 * b, 64 * b + 64 < F ? 64 * b + 64 : F, W, H, r, sigma, mine, 0, 0);
+    }
+}
+"""
+
 
 def blur_radius(sigma: float, eps: float) -> float:
     """Distance (pixels) beyond which ``D = sigmoid(-d^2 / sigma) < eps``."""
@@ -227,12 +555,13 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
     sigma: blur in squared pixels (at distance ``sqrt(sigma)`` px outside a triangle, D = sigmoid(-1));
     eps: pairs with ``D < eps`` are skipped (the dense formula differs by about eps per pixel at most);
     near: faces with a vertex nearer than this (world units along the view axis) are dropped;
-    chunk: pairs evaluated at once (bounds memory); backend: "eager" or "compiled" (torch.compile),
-    default ``$IPM_SOFT_BACKEND`` or "eager".
+    chunk: pairs evaluated at once (bounds memory; eager and compiled); backend: "native" (the C kernel;
+    float32 and float64 on the CPU, else and without a C compiler "eager"), "eager" or "compiled"
+    (torch.compile), default ``$IPM_SOFT_BACKEND`` or "native".
     Returns a tensor with the dtype and device of ``verts``.
     """
     check_mesh_tensors(verts, faces)
-    backend = backend or os.environ.get("IPM_SOFT_BACKEND", "eager")
+    backend = backend or os.environ.get("IPM_SOFT_BACKEND") or "native"
     if backend not in BACKENDS:
         raise InputError(f"backend: expected one of {', '.join(BACKENDS)}, got {backend!r}")
     if not sigma > 0:
@@ -241,6 +570,12 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
         raise InputError(f"eps: expected a cutoff in (0, 0.5), got {eps}")
     W, H = int(camera.width), int(camera.height)
     tri, _, _ = visible_triangles(verts, faces, camera, near)
+    if backend == "native":
+        if (verts.device.type == "cpu" and verts.dtype in (torch.float32, torch.float64)
+                and _native_lib() is not None):
+            S = _SoftLogSumNative.apply(tri, W, H, float(sigma), blur_radius(sigma, eps))
+            return -torch.expm1(S)
+        backend = "eager"
     groups, kept = span_rows(tri, blur_radius(sigma, eps), W, H, backend)
     if not groups:
         return verts.sum() * 0 + torch.zeros(H, W, dtype=verts.dtype, device=verts.device)
