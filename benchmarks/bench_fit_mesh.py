@@ -67,12 +67,12 @@ def _chamfer_rows() -> list[dict]:
 
 
 def run(out_dir: Path) -> list[dict]:
-    from ipm.fitting import load_target
+    from ipm.io.fit_targets import TargetFiles, load_target
 
     torch.set_num_threads(2)
     rows = []
     if MUG.is_file():
-        target = load_target(target_mesh=MUG, up="z")
+        target, _ = load_target(TargetFiles(target_mesh=str(MUG), up="z"))
         rows.append(_case("real mug scan, mug preset", target, 1500, preset="mug", discrete="none"))
         rows.append(_case("real mug scan, defaults", target, 3000, discrete="memetic"))
     notes = __doc__.split("\n\n", 1)[1].strip()

@@ -38,60 +38,20 @@ def _settings_from_json(d: dict):
     return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
 
 
-def load_target(*, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
-                camera: str = "known", device=None, dtype=torch.float32):
-    """A MaskTarget from a mask folder, or a MeshTarget from a mesh file (normalized as in DESIGN.md)."""
-    from ipm.optim.targets import MaskTarget, MeshTarget
-
-    if (masks is None) == (target_mesh is None):
-        raise InputError("expected exactly one target, masks (a folder) or a target mesh; got "
-                         + ("both" if masks is not None else "neither"))
-    if masks is not None:
-        from ipm.io.masks import CAMERAS_FILE, load_mask_set
-
-        folder = Path(masks)
-        if camera == "fit" and not (folder / CAMERAS_FILE).is_file():
-            m, cams = _masks_without_cameras(folder)
-        else:
-            if not (folder / CAMERAS_FILE).is_file():
-                raise InputError(f"--masks {folder}: expected {CAMERAS_FILE}, got no {CAMERAS_FILE}; give the "
-                                 "cameras, or recover them with --camera fit")
-            ms = load_mask_set(folder)
-            m, cams = ms.masks, list(ms.cameras)
-            sizes = {(c.width, c.height) for c in cams}
-            if len(sizes) > 1:
-                raise InputError(f"--masks {folder}: expected masks of one size, got sizes {sorted(sizes)}")
-        t = torch.as_tensor(m, device=device).to(dtype)
-        return MaskTarget(t, [c.to(dtype=dtype, device=device) for c in cams])
-    from ipm.io.meshes import load_mesh
-
-    mesh = load_mesh(Path(target_mesh), up=up, normalize=True)
-    if mesh.n_faces == 0:
-        raise InputError(f"target mesh {target_mesh}: expected faces, got none")
-    return MeshTarget(mesh)
-
-
-def _masks_without_cameras(folder: Path):
-    """Masks ``view_*.png`` of one size and placeholder cameras (protocol pose) for ``camera="fit"``."""
-    import numpy as np
-
-    from ipm.io.masks import read_mask
-    from ipm.render.camera import orbit_camera
-
-    paths = sorted(folder.glob("view_*.png"))
-    if len(paths) != 1:
-        raise InputError(f"--camera fit: expected exactly one mask view_000.png in {folder}, got {len(paths)}")
-    m = read_mask(paths[0])
-    H, W = m.shape
-    return np.stack([m]), [orbit_camera(0.0, 25.0, 3.2, fov_deg=40.0, width=W, height=H)]
-
-
 def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
+        depth: str | Path | None = None, depth_scale: float = 0.001, parts: str | Path | None = None,
+        image: str | Path | None = None, mask: str | Path | None = None, box=None,
+        intrinsics: str | Path | None = None, photo_size: int = 128,
         run_dir: str | Path | None = None, resume: bool = False, library: list[str] | None = None,
         progress: Callable | None = None, device=None, **settings) -> FitResult:
-    """Fit ``generator`` (a name, tree file or Generator) to masks or a mesh; see :class:`FitSettings`
-    for ``settings`` (budget, seed, discrete, camera, loss, local, lr, preset, free, fix, ...)."""
+    """Fit ``generator`` (a name, tree file or Generator) to a target; see :class:`FitSettings` for
+    ``settings`` (budget, seed, discrete, camera, loss, local, lr, preset, free, fix, depth_weight, ...).
+
+    Targets (:mod:`ipm.io.fit_targets`): ``masks`` (a mask-set folder) with optional ``depth`` and ``parts``
+    folders; a photo ``image`` with its ``mask`` or a ``box`` around the object, optional ``depth`` (a file)
+    and ``intrinsics`` (the camera is fitted: with intrinsics its pose only); or ``target_mesh``."""
     from ipm.generators import get_generator
+    from ipm.io.fit_targets import TargetFiles, load_target
     from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, read_trajectory, write_json
     from ipm.optim.evaluator import ReplayMismatch
     from ipm.optim.fit import FitSettings, hard_scores, run_fit
@@ -114,20 +74,29 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
             raise InputError(f"--resume {run_dir}: expected the run's generator {saved.get('generator')!r}, "
                              f"got {gen.name!r}")
         cfg = _settings_from_json(saved["settings"])
-        masks, target_mesh, up = saved.get("masks"), saved.get("target_mesh"), saved.get("up", "y")
+        saved_files = saved.get("target") or {k: saved.get(k) for k in ("masks", "target_mesh", "up") if saved.get(k)}
+        if not isinstance(saved_files, dict):
+            raise InputError(f"--resume {run_dir}: expected the target's files in {SETTINGS}, got {saved_files!r:.60}")
+        files = TargetFiles.from_json(saved_files)
         replay = read_trajectory(run_dir / TRAJECTORY)
     else:
+        def opt(p):
+            return None if p is None else str(p)
+
+        files = TargetFiles(masks=opt(masks), target_mesh=opt(target_mesh), up=up, depth=opt(depth),
+                            depth_scale=depth_scale, parts=opt(parts), image=opt(image), mask=opt(mask),
+                            box=None if box is None else tuple(int(v) for v in box), intrinsics=opt(intrinsics),
+                            size=photo_size)
+        if files.image is not None and settings.get("camera", "known") != "fit":
+            settings = {**settings, "camera": "fit"}  # a photo has no cameras.json
         cfg = FitSettings(**settings)
     cfg.check()
-    target = load_target(masks=masks, target_mesh=target_mesh, up=up, camera=cfg.camera, device=device)
+    target, photo = load_target(files, camera=cfg.camera, device=device)
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written
     sink = None
     if run_dir is not None:
         run_dir.mkdir(parents=True, exist_ok=True)
-        write_json(run_dir / SETTINGS, {"generator": gen.name, "settings": cfg.to_json(),
-                                        "masks": None if masks is None else str(masks),
-                                        "target_mesh": None if target_mesh is None else str(target_mesh),
-                                        "up": up})
+        write_json(run_dir / SETTINGS, {"generator": gen.name, "settings": cfg.to_json(), "target": files.to_json()})
         sink = Trajectory(run_dir / TRAJECTORY, keep=len(replay))
     try:
         result, prob, best = run_fit(gen, target, cfg, sink=sink, replay=replay, progress=progress)
@@ -137,15 +106,44 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
         if sink is not None:
             sink.close()
     scores = hard_scores(prob, best)
+    if photo is not None:
+        scores.update(photo_scores(prob, best, photo))
     if run_dir is not None:
-        out = save_run(run_dir, prob, best, result, cfg, scores)
+        out = save_run(run_dir, prob, best, result, cfg, scores, photo)
         scores = out["scores"]
     return replace(result, scores=scores, run_dir=None if run_dir is None else str(run_dir))
 
 
+def photo_scores(prob, best: dict, photo) -> dict:
+    """Scores of a photo fit at the photo's full resolution: mask IoU against the photo's mask, and where
+    the photo has depth, the median and mean absolute depth error in millimetres on the object's pixels
+    that both see (``depth_px``: how many)."""
+    from ipm.io.fit_targets import uncrop_camera
+    from ipm.metrics import mask_iou
+    from ipm.render import deferred as R
+
+    x = best["x"].to(torch.float64)
+    mesh = prob.mesh_world(x, best["discrete"]).detach()
+    cam = uncrop_camera(prob.cameras(x)[0], photo)
+    rast = R.rasterize(mesh.verts, mesh.faces, cam)
+    fg = photo.mask > 0.5
+    out = {"photo_iou": round(float(mask_iou(rast.mask.numpy(), fg)), 5)}
+    if photo.depth is not None:
+        import numpy as np
+
+        d = R.depth(mesh.verts, mesh.faces, cam, rast).numpy() * photo.unit
+        both = fg & rast.mask.numpy() & np.isfinite(photo.depth)
+        err = np.abs(d[both] - photo.depth[both]) * 1000.0
+        out.update({"depth_median_mm": round(float(np.median(err)), 3) if err.size else None,
+                    "depth_mean_mm": round(float(err.mean()), 3) if err.size else None,
+                    "depth_px": int(both.sum())})
+    return out
+
+
 def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
-             scores: dict) -> dict:
-    """Write params.json, mesh.glb, mesh.obj, result.json and pictures into ``run_dir``."""
+             scores: dict, photo=None) -> dict:
+    """Write params.json, mesh.glb, mesh.obj, result.json and pictures into ``run_dir`` (with a photo
+    target, ``overlay_photo.png``: the fit's outline over the photo)."""
     import numpy as np
 
     import ipm
@@ -174,6 +172,8 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
                 overlay(tgt.cpu().numpy() > 0.5, pred, title=f"view {i}: target red, fit green").save(tmp, "PNG")
             overlays.append(path.name)
         files["overlays"] = overlays
+    if photo is not None:
+        files["photo_overlay"] = _photo_overlay(run_dir / "overlay_photo.png", prob, best, photo)
     from ipm.io.runs import TRAJECTORY, read_trajectory
     from ipm.viz.plots import plot_losses
 
@@ -192,3 +192,29 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     }
     write_json(run_dir / RESULT, out)
     return out
+
+
+def _photo_overlay(path: Path, prob, best: dict, photo) -> str:
+    """The photo with the fit's silhouette tinted green and its outline and the mask's drawn (fit: green,
+    mask: red)."""
+    import cv2
+    import numpy as np
+
+    from ipm.files import atomic_path
+    from ipm.io.fit_targets import uncrop_camera
+    from ipm.render.raster import rasterize_mesh
+
+    x = best["x"].to(torch.float64)
+    mesh = prob.mesh_world(x, best["discrete"]).detach()
+    pred = rasterize_mesh(mesh, uncrop_camera(prob.cameras(x)[0], photo)).mask.cpu().numpy()
+    out = photo.image.astype(np.float64)
+    out[pred] = 0.7 * out[pred] + 0.3 * np.array([0.0, 255.0, 0.0])
+    out = np.ascontiguousarray(out.round().astype(np.uint8))
+    for m, color in ((photo.mask > 0.5, (255, 0, 0)), (pred, (0, 255, 0))):
+        contours, _ = cv2.findContours(m.astype(np.uint8), cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+        cv2.drawContours(out, contours, -1, color, 2)
+    from PIL import Image
+
+    with atomic_path(path) as tmp:
+        Image.fromarray(out).save(tmp, "PNG")
+    return path.name

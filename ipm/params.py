@@ -38,6 +38,10 @@ class Param:
     # a fine-detail parameter (per-section offsets, ...): fits hold it at its starting value while they
     # search and free it in the final refinement (coarse to fine)
     detail: bool = False
+    # a size repeated once per unit of this discrete count (a storey's height, per "floors"): a fit that
+    # changes the count keeps size x count, so a candidate with more floors starts as tall as the building
+    # it came from (ipm.optim.problem.Problem.carry)
+    per: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("float", "int", "bool"):
@@ -81,6 +85,8 @@ class Param:
                "hi": self.hi, "doc": self.doc}
         if self.detail:
             out["detail"] = True
+        if self.per:
+            out["per"] = self.per
         return out
 
 

@@ -76,10 +76,10 @@ def test_dishes_fit_to_the_real_mug_scan_by_chamfer():
     follow."""
     from conftest import real_path
 
-    from ipm.fitting import load_target
+    from ipm.io.fit_targets import TargetFiles, load_target
     from ipm.metrics import fscore
 
-    target = load_target(target_mesh=real_path("vessels/ocrtoc_mug.ply"), up="z")
+    target, _ = load_target(TargetFiles(target_mesh=str(real_path("vessels/ocrtoc_mug.ply")), up="z"))
     res, prob, best = run_fit(get_generator("dishes"), target,
                               FitSettings(budget=1500, seed=0, preset="mug", discrete="none"))
     fit = prob.mesh_world(best["x"].double(), best["discrete"]).detach()

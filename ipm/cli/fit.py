@@ -1,4 +1,5 @@
-"""``ipm fit GEN (--target-mesh MESH | --masks DIR) ... -o RUN_DIR``."""
+"""``ipm fit GEN (--masks DIR [--depth DIR] [--parts DIR] | --image PHOTO (--mask MASK | --box BOX) [--depth FILE]
+[--intrinsics FILE] | --target-mesh MESH) ... -o RUN_DIR``."""
 
 from __future__ import annotations
 
@@ -21,6 +22,25 @@ def register(app: typer.Typer) -> None:
         masks: Annotated[Path | None, typer.Option(help="mask folder: view_000.png ... + cameras.json")] = None,
         target_mesh: Annotated[Path | None, typer.Option("--target-mesh", help="mesh to match (Chamfer)")] = None,
         up: Annotated[str, typer.Option(help="up axis of --target-mesh: y or z")] = "y",
+        depth: Annotated[Path | None, typer.Option(help=(
+            "depth maps: with --masks a folder of depth_000.npy (scene units) or depth_000.png (16-bit mm) ...; "
+            "with --image the photo's depth map"))] = None,
+        depth_scale: Annotated[float, typer.Option("--depth-scale", help=(
+            "scene units per step of a 16-bit depth PNG (0.001: millimetres to metres)"))] = 0.001,
+        parts: Annotated[Path | None, typer.Option(help=(
+            "part labels: a folder of part_000.png ... and parts.json naming the label values"))] = None,
+        image: Annotated[Path | None, typer.Option(help=(
+            "a photo to fit (one view; the camera is fitted, with --intrinsics its pose only)"))] = None,
+        mask: Annotated[Path | None, typer.Option(
+            help="the photo's foreground mask (PNG, soft 0..255 allowed)")] = None,
+        box: Annotated[str | None, typer.Option(help=(
+            "X0,Y0,X1,Y1: a box around the object in the photo, segmented with GrabCut (instead of --mask)"))] = None,
+        intrinsics: Annotated[Path | None, typer.Option(help=(
+            "the photo's camera: JSON {fx, fy, cx, cy, width, height} or a YAML as ClearGrasp ships it"))] = None,
+        size: Annotated[int, typer.Option(help="photo: pixels a side of the square crop the fit sees")] = 128,
+        depth_weight: Annotated[float, typer.Option("--depth-weight", help="weight of the depth loss")] = 1.0,
+        parts_weight: Annotated[float, typer.Option("--parts-weight", help="weight of the part-label loss")] = 1.0,
+        image_weight: Annotated[float, typer.Option("--image-weight", help="weight of the shading loss")] = 1.0,
         camera: Annotated[str, typer.Option(help="known (cameras.json) or fit (recover elevation, "
                                                  "distance, FOV)")] = "known",
         discrete: Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")] = "memetic",
@@ -56,8 +76,24 @@ def register(app: typer.Typer) -> None:
             if resume is None:
                 raise UsageError("expected a generator: ipm fit GEN ... (see ipm list generators)")
             gen = _run_generator(resume)
-        if resume is None and (masks is None) == (target_mesh is None):
-            raise UsageError("expected exactly one target: --masks DIR or --target-mesh MESH")
+        given = [n for n, v in (("--masks", masks), ("--target-mesh", target_mesh), ("--image", image))
+                 if v is not None]
+        if resume is None and len(given) != 1:
+            raise UsageError("expected exactly one target: --masks DIR, --image PHOTO or --target-mesh MESH; got "
+                             + (" and ".join(given) if given else "none"))
+        if image is not None and (mask is None) == (box is None):
+            raise UsageError("--image: expected the photo's --mask MASK.png or a --box X0,Y0,X1,Y1 around the "
+                             "object (ipm mask makes a mask from a box), one of them; got "
+                             + ("both" if mask is not None else "neither"))
+        for name, v in (("--mask", mask), ("--box", box), ("--intrinsics", intrinsics)):
+            if v is not None and image is None:
+                raise UsageError(f"{name}: expected with a photo (--image PHOTO), got no --image")
+        for name, path in (("--image", image), ("--mask", mask), ("--intrinsics", intrinsics)):
+            if path is not None and not path.is_file():
+                raise UsageError(f"{name}: file not found: {path}")
+        for name, path in (("--depth", depth), ("--parts", parts)):
+            if path is not None and not path.exists():
+                raise UsageError(f"{name}: not found: {path}")
         if budget < 1:
             raise UsageError(f"--budget: expected at least 1 evaluation, got {budget}")
         if up not in ("y", "z"):
@@ -81,6 +117,11 @@ def register(app: typer.Typer) -> None:
                 ranges[name.strip()] = [int(lo), int(hi)]
             except ValueError:
                 raise UsageError(f"--range: expected NAME=LO:HI with integers, got {item!r}") from None
+        box_px = None
+        if box is not None:
+            from ipm.segment import parse_box
+
+            box_px = parse_box(box)
         dev = resolve_device(device)
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -100,7 +141,10 @@ def register(app: typer.Typer) -> None:
                        iou="-" if iou is None else f"{min(iou):.3f}")
 
         try:
-            result = run(gen, masks=masks, target_mesh=target_mesh, up=up, run_dir=resume or output,
+            result = run(gen, masks=masks, target_mesh=target_mesh, up=up, depth=depth, depth_scale=depth_scale,
+                         parts=parts, image=image, mask=mask, box=box_px, intrinsics=intrinsics, photo_size=size,
+                         depth_weight=depth_weight, parts_weight=parts_weight, image_weight=image_weight,
+                         run_dir=resume or output,
                          resume=resume is not None, library=[str(p) for p in library] if library else None,
                          progress=progress, device=dev, budget=budget, seed=seed, discrete=discrete, camera=camera,
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,

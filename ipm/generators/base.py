@@ -66,6 +66,9 @@ class Generator(ABC):
     # Adam step of silhouette fits in normalized parameter space (ipm.optim.fit.fit_lr); None: the fit's
     # default. Generators with many fine-grained parameters (a profile of radii) want a smaller one
     mask_lr: float | None = None
+    # names of the face groups (parts) its meshes can have, whatever the discrete values: what a part-label
+    # target may name. Empty: the groups of the mesh at the default values
+    parts: tuple[str, ...] = ()
 
     # -- values --------------------------------------------------------------------------------
     def values(self, preset: str | None = None, overrides: Mapping[str, object] | None = None) -> dict:

@@ -56,15 +56,16 @@ BALCONY_PATTERNS = ("none", "all", "alternate floors", "checkerboard")
 _HIP_FACES = ((0, 2, 1), (0, 3, 2), (0, 1, 4), (1, 2, 5), (1, 5, 4), (2, 3, 5), (3, 0, 4), (3, 4, 5))
 
 
-def _f(name, default, lo, hi, doc=""):
-    return Param(name, default, lo, hi, "float", doc)
+def _f(name, default, lo, hi, doc="", per=None):
+    return Param(name, default, lo, hi, "float", doc, per=per)
 
 
 def building_spec() -> ParamSpec:
     """The building's parameters: 21 continuous sizes (metres) and 7 discrete counts and switches."""
     return ParamSpec((
-        _f("floor_height", 2.8, 2.2, 5.0, "storey height"),
-        _f("section_width", 16.0, 4.0, 40.0, "length of one section (entrance) along the facade"),
+        _f("floor_height", 2.8, 2.2, 5.0, "storey height", per="floors"),
+        _f("section_width", 16.0, 4.0, 40.0, "length of one section (entrance) along the facade",
+           per="sections"),
         _f("depth", 12.0, 4.0, 25.0, "depth of the block"),
         _f("wall_thickness", 0.35, 0.1, 0.8, "thickness of the facade layer around the windows"),
         _f("plinth_height", 0.8, 0.1, 3.0, "height of the plinth below the first floor"),
@@ -131,6 +132,7 @@ class BuildingGenerator(Generator):
     name = "building"
     kind = "mesh"
     description = "multi-storey panel block: walls with window openings, windows, balconies, doors, roof"
+    parts = GROUPS
 
     def __init__(self):
         self.spec = building_spec()

@@ -32,7 +32,8 @@ def view_name(i: int) -> str:
 
 @dataclass(frozen=True)
 class MaskSet:
-    """Masks (N, H, W) bool with their cameras (N entries); ``paths`` are the mask files."""
+    """Masks (N, H, W) bool (float32 in [0, 1] when read soft) with their cameras (N entries); ``paths`` are
+    the mask files."""
 
     masks: torch.Tensor
     cameras: tuple[Camera, ...]
@@ -42,9 +43,10 @@ class MaskSet:
         return len(self.cameras)
 
 
-def read_mask(path: str | Path) -> np.ndarray:
+def read_mask(path: str | Path, soft: bool = False) -> np.ndarray:
     """A mask PNG as (H, W) bool (foreground: value > 127; color images are converted to luminance,
-    images with alpha use the alpha channel). ``ValueError`` if the file is not an image."""
+    images with alpha use the alpha channel), or with ``soft`` as (H, W) float32 ``value / 255`` (soft
+    masks: 0..255 is the foreground's share of the pixel). ``InputError`` if the file is not an image."""
     from PIL import Image, UnidentifiedImageError
 
     path = Path(path)
@@ -58,6 +60,8 @@ def read_mask(path: str | Path) -> np.ndarray:
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
         raise InputError(f"mask {path}: expected a PNG image, got an unreadable file "
                          f"({type(e).__name__})") from None
+    if soft:
+        return arr.astype(np.float32) / 255.0
     return arr > 127
 
 
@@ -106,14 +110,14 @@ def save_mask_set(folder: str | Path, masks, cameras: Sequence[Camera]) -> list[
     return paths
 
 
-def load_mask_set(folder: str | Path) -> MaskSet:
+def load_mask_set(folder: str | Path, soft: bool = False) -> MaskSet:
     """Read and validate a mask set.
 
     Checks: the folder exists; ``cameras.json`` is there and every entry has eye, target, up, fov_deg,
     width and height; masks are named ``view_000.png`` ... without gaps; there are as many masks as
     cameras; every mask is a readable image of its camera's size. Returns masks (N, H, W) bool
     (views of different sizes are not stacked: then ``masks`` is padded to the largest size and the
-    cameras tell each view's size).
+    cameras tell each view's size). ``soft``: masks as float32 in [0, 1] (:func:`read_mask`).
     """
     folder = Path(folder)
     if not folder.is_dir():
@@ -140,14 +144,14 @@ def load_mask_set(folder: str | Path) -> MaskSet:
                          f"{len(cameras)} entries in {CAMERAS_FILE}")
     arrays = []
     for i, cam in enumerate(cameras):
-        arr = read_mask(found[i])
+        arr = read_mask(found[i], soft)
         if arr.shape != (cam.height, cam.width):
             raise InputError(f"mask {found[i]}: expected {cam.width}x{cam.height} pixels (from "
                              f"{CAMERAS_FILE}), got {arr.shape[1]}x{arr.shape[0]}")
         arrays.append(arr)
     H = max(a.shape[0] for a in arrays)
     W = max(a.shape[1] for a in arrays)
-    stack = np.zeros((len(arrays), H, W), dtype=bool)
+    stack = np.zeros((len(arrays), H, W), dtype=np.float32 if soft else bool)
     for i, a in enumerate(arrays):
         stack[i, : a.shape[0], : a.shape[1]] = a
     return MaskSet(torch.from_numpy(stack), tuple(cameras), tuple(found[i] for i in expected))

@@ -38,7 +38,8 @@ def pose_grid(prob: Problem, ev: Evaluator, d: dict, x: torch.Tensor | None = No
     yaws = list(YAWS) if prob.s.pose else [0.0]
     cams = [None]
     if prob.cam_fit:
-        cams = list(CAMERA_GRID)
+        # with known intrinsics the FOV coordinate is unused: one FOV of the grid is enough
+        cams = [c for c in CAMERA_GRID if not prob.target.known_intrinsics or c[2] == CAMERA_GRID[0][2]]
     scored = []
     for cam in cams:
         for yaw in yaws:
@@ -104,6 +105,7 @@ def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tenso
             continue
         vals = prob.gen.values(name, prob.s.fix)
         th, dd = prob.gen.split(vals, torch.float64)
+        th = prob.carry(th, dd, inverse=True)  # the search holds sizes per count for the starting counts
         out.append((torch.cat([prob.encode_params(th), x_best[prob.n:]]), dict(dd)))
     return out
 

@@ -61,6 +61,10 @@ class FitSettings:
     # SDF generators: meshing of the result
     resolution: Annotated[int, Meta(ge=8, extra={"noun": "a meshing resolution"})] = 128
     ties: bool = True                # discrete values the input cannot tell apart go to the preset's (break_ties)
+    # weights of the cues beyond silhouettes (used where the target has them; ipm.losses.cues)
+    depth_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
+    parts_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
+    image_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
     memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
     nlopt: D.NloptSettings = field(default_factory=D.NloptSettings)
 

@@ -1,4 +1,5 @@
-"""What a fit matches: silhouettes seen by known cameras, or a mesh."""
+"""What a fit matches: silhouettes seen by known cameras (with optional depth, part labels and a photo per
+view), or a mesh."""
 
 from __future__ import annotations
 
@@ -12,11 +13,30 @@ from ipm.types import Camera, TriMesh
 
 @dataclass
 class MaskTarget:
-    """Silhouettes to match: ``masks (K, H, W)`` float in [0, 1] and one camera per view (``camera="fit"``
-    uses only their image sizes)."""
+    """Silhouettes to match, and what else the views show.
+
+    masks: (K, H, W) float in [0, 1] (soft masks allowed; > 0.5 is the object); cameras: one per view
+    (``camera="fit"`` uses only their image sizes and principal points);
+    depth: optional (K, H, W) view-axis depth in scene units, NaN where there is no reading;
+    parts: optional (K, H, W) int64, ``k`` where the pixel shows the part ``part_names[k]``, -1 where it
+    shows none of the named parts (background or another part);
+    image: optional (K, H, W) grey photo in [0, 1] (shading is compared on the object's pixels);
+    known_intrinsics: with ``camera="fit"``, the cameras' field of view and principal point are known
+    (only the camera's elevation and distance are fitted).
+    """
 
     masks: torch.Tensor
     cameras: list[Camera]
+    depth: torch.Tensor | None = None
+    parts: torch.Tensor | None = None
+    part_names: tuple[str, ...] = ()
+    image: torch.Tensor | None = None
+    known_intrinsics: bool = False
+
+    @property
+    def cues(self) -> tuple[str, ...]:
+        """The cues given besides the masks, in the order "depth", "parts", "image"."""
+        return tuple(n for n in ("depth", "parts", "image") if getattr(self, n) is not None)
 
     def __post_init__(self):
         if self.masks.ndim != 3:
@@ -24,6 +44,21 @@ class MaskTarget:
         if len(self.cameras) != self.masks.shape[0]:
             raise InputError(f"expected one camera per mask, got {len(self.cameras)} cameras for "
                              f"{self.masks.shape[0]} masks")
+        shape = tuple(self.masks.shape)
+        for name in self.cues:
+            got = tuple(getattr(self, name).shape)
+            if got != shape:
+                raise InputError(f"{name}: expected one map per mask of the masks' size {shape}, got {got}")
+        if self.depth is not None:
+            for i, d in enumerate(self.depth):
+                if not bool((torch.isfinite(d) & (self.masks[i] > 0.5)).any()):
+                    raise InputError(f"depth {i}: expected a valid depth on some of the object's pixels, got none")
+        if self.parts is not None:
+            if not self.part_names:
+                raise InputError("parts: expected the names of the labels, got none")
+            if int(self.parts.max()) >= len(self.part_names) or int(self.parts.min()) < -1:
+                raise InputError(f"parts: expected labels in [-1, {len(self.part_names) - 1}], got "
+                                 f"[{int(self.parts.min())}, {int(self.parts.max())}]")
         for i, m in enumerate(self.masks):
             frac = float((m > 0.5).float().mean())
             if frac == 0.0:

@@ -1,4 +1,5 @@
-"""The tie rule: discrete values that the input views cannot tell apart go back to the preset's."""
+"""The tie rule: discrete values that the input views (silhouettes, and depth and part labels where given)
+cannot tell apart go back to the preset's."""
 
 from __future__ import annotations
 
@@ -44,7 +45,11 @@ def break_ties(prob: Problem, ev: Evaluator, winner: Best) -> tuple[torch.Tensor
     Values are set back one at a time in the generator's order, each compared with the winner, so
     where only some tie the result is the tied combination closest to the preset found that way. A
     part the winner lacks is tried where the winner's continuous values put it; if it shows there, it
-    does not tie. Silhouette targets only (a mesh target shows every part).
+    does not tie. Silhouette targets only (a mesh target shows every part). Where the target has depth
+    or part labels, they must not move either: the object pixels whose depth agrees with the target
+    (``depth_px``), and each named part's intersection and union with its labels (``parts_px``), by
+    the same allowance per view (a handle hidden in the silhouette but pointing at the camera shows in
+    the depth).
 
     Returns (x (m,), discrete values, loss, names of the parameters set back to the preset's values).
     """
@@ -53,6 +58,7 @@ def break_ties(prob: Problem, ev: Evaluator, winner: Best) -> tuple[torch.Tensor
     back = [p.name for p in prob.searched if d.get(p.name) != prob.d0.get(p.name)]
     if ref is None or not back:
         return x, d, loss, ()
+    cues = {k: winner.extras[k] for k in ("depth_px", "parts_px") if k in winner.extras}
     allowed = [max(1.0, TIE_SHARE * float(n)) for n in (prob.target.masks > 0.5).sum((-2, -1))]
     tied: list[str] = []
     for name in back:
@@ -64,6 +70,13 @@ def break_ties(prob: Problem, ev: Evaluator, winner: Best) -> tuple[torch.Tensor
         except BudgetExhausted:
             break
         moved = [abs(a[0] - b[0]) + abs(a[1] - b[1]) for a, b in zip(ev.last["iou_px"], ref)]
+        for key, ref_cue in cues.items():
+            got = ev.last[key]
+            if key == "depth_px":
+                moved = [m + abs(a - b) for m, a, b in zip(moved, got, ref_cue)]
+            else:  # parts_px: per view, per part [intersection, union]
+                moved = [m + sum(abs(p[0] - q[0]) + abs(p[1] - q[1]) for p, q in zip(a, b))
+                         for m, a, b in zip(moved, got, ref_cue)]
         same = all(m <= a for m, a in zip(moved, allowed))
         log.info("tie rule: %s=%s -> %s: loss %.6g -> %.6g, silhouettes moved by %s px (%s)", name, d[name],
                  cand[name], loss, lc, moved, "a tie" if same else "no tie")

@@ -16,16 +16,23 @@ from ipm.optim.strategies import STRATEGIES
 MAX_ENUMERATE = 64
 
 
+def check(searched) -> None:
+    """Before a fit starts (:class:`~ipm.optim.problem.Problem`): :class:`InputError` if the searched discrete
+    parameters (their possibly narrowed ranges) have more than :data:`MAX_ENUMERATE` combinations."""
+    n = math.prod(int(p.hi) - int(p.lo) + 1 for p in searched)
+    if n > MAX_ENUMERATE:
+        raise InputError(f"--discrete enumerate: expected at most {MAX_ENUMERATE} combinations, got "
+                         f"{n} combinations of {', '.join(p.name for p in searched)}; narrow them with --range "
+                         "or --fix, or use memetic or nlopt")
+
+
 @STRATEGIES.register("enumerate")
 def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None,
                        steps0: int | None = None) -> None:
     """All discrete combinations, refined from the best start with successive halving."""
+    check(space.discrete)
     ranges = [range(int(p.lo), int(p.hi) + 1) for p in space.discrete]
     combos = [dict(zip((p.name for p in space.discrete), c)) for c in itertools.product(*ranges)]
-    if len(combos) > MAX_ENUMERATE:
-        raise InputError(f"--discrete enumerate: expected at most {MAX_ENUMERATE} combinations, got "
-                         f"{len(combos)} combinations of {', '.join(p.name for p in space.discrete)}; "
-                         "use memetic or nlopt")
     x0 = space.starts[0][0]
     ev.phase = "enumerate:poses"
     try:
@@ -54,3 +61,6 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
             steps *= 2
     except BudgetExhausted:
         return
+
+
+enumerate_discrete.check = check  # called by Problem before any evaluation or file

@@ -1,0 +1,280 @@
+"""Fits to cues beyond silhouettes: depth, part labels and photos (ipm.losses.cues, ipm.io.fit_targets,
+the cue terms of ipm.optim.problem, sizes per count, the tie rule with cues, and the CLI's bad inputs)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from ipm.generators import get_generator
+from ipm.io.fit_targets import TargetFiles, load_target, uncrop_camera
+from ipm.losses import cues as C
+from ipm.optim.problem import Problem
+from ipm.optim.settings import FitSettings
+from ipm.render.camera import orbit_camera, project, save_cameras
+from tests.conftest import real_path, require_file, run_cli
+
+PHOTOS = "photos/cleargrasp_cups"
+
+
+# -- the losses ----------------------------------------------------------------------------------------
+
+def test_depth_loss_is_zero_on_agreement_and_charges_uncovered_pixels():
+    t = torch.full((8, 8), 2.0, dtype=torch.float64)
+    t[0, 0] = math.nan
+    obj = torch.ones(8, 8, dtype=torch.bool)
+    cov = torch.ones(8, 8, dtype=torch.bool)
+    assert float(C.depth_loss(t.nan_to_num(0.0), cov, t, obj, 2.0)) == 0.0
+    # 10 % of the distance everywhere: about 1 (the module's scale)
+    assert float(C.depth_loss(t.nan_to_num(0.0) * 1.1, cov, t, obj, 2.0)) == pytest.approx(0.95, abs=1e-9)
+    # an uncovered object pixel costs what an error of a tenth of the distance costs
+    cov2 = cov.clone()
+    cov2[4, 4] = False
+    assert float(C.depth_loss(t.nan_to_num(0.0), cov2, t, obj, 2.0)) == pytest.approx(1 / 63)
+    assert C.depth_agreement(t.nan_to_num(0.0), cov2, t, obj, 2.0) == 62
+
+
+def test_fit_light_recovers_a_lambert_light_in_closed_form():
+    g = torch.Generator().manual_seed(0)
+    n = torch.randn(500, 3, generator=g, dtype=torch.float64)
+    n = n / n.norm(dim=1, keepdim=True)
+    light = torch.tensor([0.3, 0.8, 0.52], dtype=torch.float64)
+    light = light / light.norm()
+    grey = 0.15 + 0.7 * (n @ light).clamp_min(0)
+    pred, ambient, L = C.fit_light(n, grey)
+    assert float(ambient) == pytest.approx(0.15, abs=1e-5)
+    assert torch.allclose(L, 0.7 * light, atol=1e-5)
+    assert float((pred - grey).abs().max()) < 1e-5
+
+
+def test_shading_loss_gradient_matches_finite_differences():
+    g = torch.Generator().manual_seed(1)
+    n = torch.randn(6, 6, 3, generator=g, dtype=torch.float64)
+    grey = torch.rand(6, 6, generator=g, dtype=torch.float64)
+    pix = torch.ones(6, 6, dtype=torch.bool)
+
+    def f(n):
+        return C.shading_loss(n / n.norm(dim=-1, keepdim=True), grey, pix)[0]
+
+    assert torch.autograd.gradcheck(f, (n.requires_grad_(True),), eps=1e-6, atol=1e-6)
+
+
+def test_parts_loss_is_zero_for_equal_labels_and_one_without_overlap():
+    a = torch.zeros(1, 32, 32, dtype=torch.float64)
+    a[0, 4:8, 4:8] = 1
+    b = torch.zeros_like(a)
+    b[0, 20:24, 20:24] = 1
+    assert float(C.parts_loss(a, a)) == pytest.approx(0.0, abs=1e-12)
+    assert float(C.parts_loss(a, b)) == pytest.approx(1.0, abs=1e-9)
+    shifted = torch.roll(a, 1, dims=-1)
+    assert 0.0 < float(C.parts_loss(a, shifted)) < 0.5  # blurred: one pixel off still overlaps
+
+
+# -- sizes per count -----------------------------------------------------------------------------------
+
+def test_sizes_per_count_keep_the_total_when_the_count_changes():
+    g = get_generator("building")
+    m = torch.ones(1, 16, 16)
+    m[0, 0, 0] = 0
+    prob = Problem(g, _mask_target(m), FitSettings(preset="panel5", discrete="memetic"))
+    x = prob.x0()
+    for floors in (4, 5, 6):
+        v = prob.values(x, {"floors": floors})
+        assert v["floors"] * v["floor_height"] == pytest.approx(5 * 2.8)
+    assert prob.values(x, {"floors": 7})["floor_height"] == 2.2  # 2.0 would be below the bound: clamped
+    assert prob.values(x, {"sections": 2})["section_width"] == pytest.approx(32.0)
+    # the canonical frame (bounding box at the start values) is the same for every floor count
+    assert prob.frame({"floors": 6})[1] == pytest.approx(prob.frame({"floors": 5})[1])
+    # a preset of other counts is encoded so that it decodes to its own sizes
+    th = torch.tensor([2.5], dtype=torch.float64)
+    theta = prob.theta0.clone()
+    theta[0] = th
+    back = prob.carry(prob.carry(theta, {"floors": 9}, inverse=True), {"floors": 9})
+    assert float(back[0]) == pytest.approx(2.5)
+
+
+def _mask_target(m):
+    from ipm.optim.targets import MaskTarget
+
+    return MaskTarget(m, [orbit_camera(30.0, 25.0, 3.2, width=m.shape[-1], height=m.shape[-2])])
+
+
+# -- part labels: the building's counts ---------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def panel5(tmp_path_factory):
+    """panel5 with 7 floors and 4 windows, one front-left view (160 px): masks, depth, all part labels
+    (ipm render) and a window mask as a user would draw it (255 on windows)."""
+    folder = tmp_path_factory.mktemp("panel5")
+    cams = folder / "cams.json"
+    save_cameras(cams, [orbit_camera(-35.0, 15.0, 3.2, fov_deg=40.0, width=160, height=160)])
+    code, _, err = _cli(["render", "building", "--preset", "panel5", "--set", "floors=7", "--set", "windows=4",
+                         "--cameras", str(cams), "--no-previews", "-o", str(folder / "r")])
+    assert code == 0, err
+    from PIL import Image
+
+    labels = np.asarray(Image.open(folder / "r" / "part_000.png"))
+    names = json.loads((folder / "r" / "parts.json").read_text())["labels"]
+    win = [int(k) for k, v in names.items() if v == "windows"][0]
+    (folder / "w").mkdir()
+    Image.fromarray(np.where(labels == win, 255, 0).astype(np.uint8)).save(folder / "w" / "part_000.png")
+    (folder / "w" / "parts.json").write_text(json.dumps({"labels": {"255": "windows"}}))
+    return folder
+
+
+def _cli(args):
+    """``ipm ARGS`` in this process (fixtures of module scope have no capsys): (exit code, "", "")."""
+    from ipm.cli import main
+
+    try:
+        main([str(a) for a in args])
+    except SystemExit as e:
+        return e.code, "", ""
+    return 0, "", ""
+
+
+def _true_pose_x(prob, g, floors, windows):
+    """The search vector of panel5 with these counts at the pose ipm render put it in (its bounding box
+    centered, farthest vertex at 1)."""
+    d = {**prob.d0, "floors": floors, "windows": windows}
+    vals = g.values("panel5", {"floors": floors, "windows": windows})
+    th, _ = g.split(vals, torch.float64)
+    v = g.mesh(th, d).verts.double()
+    c = 0.5 * (v.min(0).values + v.max(0).values)
+    r = float((v - c).norm(dim=1).max())
+    c0, L0 = prob.frame(d)
+    scale = L0 / (2 * r)
+    t = -scale * (c - c0) * 2 / L0
+    return prob.x0(theta=prob.carry(th, d, inverse=True), scale=scale, t=tuple(float(a) for a in t)), d
+
+
+def test_window_labels_tell_the_floor_and_window_counts_apart(panel5):
+    """At the true pose and sizes, the counts of the target (7 floors, 4 windows) fit the window mask best:
+    the silhouette alone cannot tell 7 floors of 2.8 m from 6 of 3.27 (sizes per count keep the outline)."""
+    g = get_generator("building")
+    target, _ = load_target(TargetFiles(masks=str(panel5 / "r"), parts=str(panel5 / "w")))
+    assert target.part_names == ("windows",)
+    prob = Problem(g, target, FitSettings(preset="panel5", discrete="memetic"))
+    x, d = _true_pose_x(prob, g, 7, 4)
+    best, extras = prob.objective(x, d, False)[::2]
+    assert extras["iou"][0] > 0.9
+    inter, union = extras["parts_px"][0][0]
+    assert inter / union > 0.95
+    for floors, windows in ((6, 4), (8, 4), (7, 3), (7, 5)):
+        loss = prob.objective(x, {**d, "floors": floors, "windows": windows}, False)[0]
+        assert float(loss) > float(best) + 0.05, (floors, windows)
+
+
+def test_part_label_gradient_matches_finite_differences(panel5):
+    g = get_generator("building")
+    target, _ = load_target(TargetFiles(masks=str(panel5 / "r"), parts=str(panel5 / "w")),
+                            dtype=torch.float64)
+    prob = Problem(g, target, FitSettings(preset="panel5", discrete="none", depth_weight=0.0),
+                   dtype=torch.float64)
+    x, d = _true_pose_x(prob, g, 7, 4)
+    x = x.clone()
+    x[: prob.n] = (x[: prob.n] + 0.02).clamp(0, 1)  # off the optimum
+    _, grad, _ = prob.objective(x, d, True)
+    torch.manual_seed(0)
+    for _ in range(2):
+        v = torch.randn(prob.n, dtype=torch.float64)
+        v = torch.cat([v / v.norm(), torch.zeros(prob.m - prob.n, dtype=torch.float64)])
+        h = 1e-5
+        fd = (float(prob.objective(x + h * v, d, False)[0]) - float(prob.objective(x - h * v, d, False)[0])) / (2 * h)
+        assert float(grad @ v) == pytest.approx(fd, rel=0.05, abs=1e-3)
+
+
+# -- depth: a handle inside the silhouette ----------------------------------------------------------------
+
+def test_depth_shows_a_handle_the_silhouette_hides(tmp_path):
+    """A mug whose handle points at the camera: with and without the handle the silhouettes are nearly the
+    same, the depth maps are not, and the tie rule's pixel counts see it."""
+    code, _, err = _cli(["render", "dishes", "--preset", "mug", "--set", "handle_azimuth=-60", "--views", "1",
+                         "--size", "128", "--no-previews", "-o", str(tmp_path / "m")])
+    assert code == 0, err
+    g = get_generator("dishes")
+    target, _ = load_target(TargetFiles(masks=str(tmp_path / "m"), depth=str(tmp_path / "m")))
+    prob = Problem(g, target, FitSettings(preset="mug", discrete="memetic"))
+    theta = prob.theta0.clone()
+    theta[[p.name for p in g.spec.continuous].index("handle_azimuth")] = -60.0
+    v = g.mesh(theta, prob.d0).verts.double()
+    c = 0.5 * (v.min(0).values + v.max(0).values)
+    r = float((v - c).norm(dim=1).max())
+    c0, L0 = prob.frame(prob.d0)
+    scale = L0 / (2 * r)
+    x = prob.x0(theta=theta, scale=scale, t=tuple(float(a) for a in -scale * (c - c0) * 2 / L0))
+    with_h = prob.objective(x, {"has_handle": 1}, False)
+    x0 = prob.repose(x, {"has_handle": 1}, {"has_handle": 0})
+    without = prob.objective(x0, {"has_handle": 0}, False)
+    n = int((target.masks > 0.5).sum())
+    iou_moved = sum(abs(a - b) for a, b in zip(with_h[2]["iou_px"][0], without[2]["iou_px"][0]))
+    depth_moved = abs(with_h[2]["depth_px"][0] - without[2]["depth_px"][0])
+    assert depth_moved > 0.05 * n > 10 * iou_moved
+    assert float(without[0]) > float(with_h[0]) + 0.05
+
+
+# -- photos -----------------------------------------------------------------------------------------------
+
+def test_photo_target_crops_and_scales_the_cleargrasp_mug():
+    photo = real_path(f"{PHOTOS}/000000130-opaque-rgb-img.jpg")
+    folder = photo.parent
+    for name in ("000000130-opaque-depth-mm.png", "camera_intrinsics.yaml"):
+        require_file(folder / name)
+    files = TargetFiles(image=str(photo), box=(380, 255, 600, 495), depth=str(folder / "000000130-opaque-depth-mm.png"),
+                        intrinsics=str(folder / "camera_intrinsics.yaml"), size=96)
+    target, ph = load_target(files, camera="fit")
+    assert target.masks.shape == (1, 96, 96) and target.known_intrinsics
+    assert target.cues == ("depth", "image")
+    # metres per scene unit: the mug's median depth sits at the protocol's distance
+    d = ph.depth[ph.mask > 0.5]
+    assert ph.unit == pytest.approx(float(np.nanmedian(d)) / 3.2)
+    # the crop's camera maps a world point where the photo's camera does, through the window
+    cam = target.cameras[0].to(torch.float64)
+    full = uncrop_camera(cam, ph)
+    p = torch.tensor([[0.1, 0.2, -0.3], [0.0, 0.0, 0.0]], dtype=torch.float64)
+    xy_crop, _ = project(p, cam)
+    xy_full, _ = project(p, full)
+    x0, y0, _ = ph.window
+    assert torch.allclose(xy_crop, (xy_full - torch.tensor([x0, y0], dtype=torch.float64)) * ph.scale, atol=1e-6)
+    assert full.principal_point == pytest.approx((642.0, 359.0))
+
+
+# -- bad inputs: one line, exit 2, nothing written --------------------------------------------------------
+
+def _bad(args, capsys, tmp_path, needle):
+    out = tmp_path / "run"
+    code, _, err = run_cli(["fit", *args, "--budget", "3", "-o", str(out)], capsys)
+    assert code == 2, err
+    lines = [ln for ln in err.strip().splitlines() if ln.startswith("ipm: error:")]
+    assert len(lines) == 1 and needle in lines[0], err
+    assert not out.exists()
+
+
+def test_bad_cue_inputs(tmp_path, capsys):
+    code, _, err = run_cli(["render", "dishes", "--preset", "mug", "--views", "1", "--size", "32", "--no-previews",
+                            "-o", str(tmp_path / "m")], capsys)
+    assert code == 0, err
+    m = tmp_path / "m"
+    small = tmp_path / "small"
+    small.mkdir()
+    np.save(small / "depth_000.npy", np.ones((16, 16), dtype=np.float32))
+    _bad(["dishes", "--masks", str(m), "--depth", str(small)], capsys, tmp_path, "of one size")
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    np.save(empty / "depth_000.npy", np.full((32, 32), np.nan, dtype=np.float32))
+    _bad(["dishes", "--masks", str(m), "--depth", str(empty)], capsys, tmp_path, "valid depth")
+    labels = tmp_path / "labels"
+    labels.mkdir()
+    from PIL import Image
+
+    Image.fromarray(np.zeros((32, 32), dtype=np.uint8)).save(labels / "part_000.png")
+    (labels / "parts.json").write_text(json.dumps({"labels": {"1": "spout"}}))
+    _bad(["dishes", "--masks", str(m), "--parts", str(labels)], capsys, tmp_path, "spout: not a part of dishes")
+    _bad(["dishes", "--image", str(m / "view_000.png")], capsys, tmp_path, "--mask")
+    _bad(["dishes", "--masks", str(m), "--mask", str(m / "view_000.png")], capsys, tmp_path, "--image")
+    _bad(["building", "--masks", str(m), "--discrete", "enumerate"], capsys, tmp_path, "at most 64 combinations")
+    _bad(["chair", "--masks", str(m), "--depth", str(m)], capsys, tmp_path, "mesh generator")
