@@ -23,7 +23,9 @@ MUG = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply").
 SIZES = (128, 256, 512)
 FACES = (1_000, 10_000, 50_000)
 SIGMA = 1.0  # squared pixels
-MITSUBA_CPU_S = 0.3  # the thesis's Mitsuba 3 CPU figure per iteration at 128^2
+# targets in ms (fwd+bwd, 10k faces); the comparison with Mitsuba 3 is measured side by side in
+# bench_mitsuba.py, not against a figure quoted from elsewhere
+TARGET_MS = {128: 30.0, 256: 100.0}
 
 
 def meshes() -> dict[int, tuple[torch.Tensor, torch.Tensor, str]]:
@@ -89,11 +91,9 @@ def run(out_dir: Path) -> list[dict]:
                "fwd+bwd ms": 1e3 * t_fb, "best fwd+bwd ms": 1e3 * b_fb, "fwd ms": 1e3 * t_f,
                "hard mask ms": 1e3 * t_hard,
                "pairs": pairs, "ns/pair (best)": 1e9 * b_fb / max(pairs, 1), "target": "-", "ok": "-"}
-        if size == 256 and n == 10_000:
-            row["target"], row["ok"] = "fwd+bwd <= 100 ms", f"median {t_fb <= 0.1}, best {b_fb <= 0.1}"
-        if size == 128 and n == 10_000:
-            lim = MITSUBA_CPU_S / 10
-            row["target"] = f">= 10x faster than {MITSUBA_CPU_S} s (<= {1e3 * lim:.0f} ms)"
+        if n == 10_000 and size in TARGET_MS:
+            lim = TARGET_MS[size] / 1e3
+            row["target"] = f"fwd+bwd <= {TARGET_MS[size]:.0f} ms"
             row["ok"] = f"median {t_fb <= lim}, best {b_fb <= lim}"
         rows.append(row)
 
@@ -112,7 +112,7 @@ def run(out_dir: Path) -> list[dict]:
                          "best fwd+bwd ms": "-", "fwd ms": "-", "hard mask ms": "-", "pairs": "-",
                          "ns/pair (best)": "-", "target": "-", "ok": "-"})
             continue
-        limit = 0.1 if size == 256 else MITSUBA_CPU_S / 10
+        limit = TARGET_MS[size] / 1e3
         rows.append({"measure": f"soft silhouette {size}^2, {faces.shape[0]} faces ({source}), "
                                 f"backend={backend}",
                      "fwd+bwd ms": 1e3 * t_c, "best fwd+bwd ms": 1e3 * b_c, "fwd ms": "-",
@@ -133,8 +133,7 @@ def run(out_dir: Path) -> list[dict]:
     rows.append({"measure": "SDF silhouette 128^2, chair tree", "fwd+bwd ms": 1e3 * t_sdf,
                  "best fwd+bwd ms": 1e3 * b_sdf, "fwd ms": "-", "hard mask ms": "-", "pairs": "-",
                  "ns/pair (best)": "-",
-                 "target": f"vs {MITSUBA_CPU_S} s (Mitsuba 3 CPU)",
-                 "ok": f"{MITSUBA_CPU_S / t_sdf:.1f}x faster (best {MITSUBA_CPU_S / b_sdf:.1f}x)"})
+                 "target": "-", "ok": "-"})
     notes = (f"sigma = {SIGMA} px^2, eps = 1e-6 (blur radius {blur_radius(SIGMA, 1e-6):.2f} px); pairs = "
              "evaluated (pixel, triangle) pairs of the eager scan, including padding; backend = the default "
              f"({'native' if native_available() else 'eager: no C compiler'}) unless stated. "

@@ -117,7 +117,8 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
 def photo_scores(prob, best: dict, photo) -> dict:
     """Scores of a photo fit at the photo's full resolution: mask IoU against the photo's mask, and where
     the photo has depth, the median and mean absolute depth error in millimetres on the object's pixels
-    that both see (``depth_px``: how many)."""
+    that both see (``depth_px``: how many; millimetres assume the depth map reads in metres, as with the
+    default ``depth_scale``)."""
     from ipm.io.fit_targets import uncrop_camera
     from ipm.metrics import mask_iou
     from ipm.render import deferred as R

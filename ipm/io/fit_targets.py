@@ -108,7 +108,6 @@ class Photo:
     window: tuple[int, int, int]
     scale: float
     unit: float
-    known_intrinsics: bool
 
 
 def load_target(files: TargetFiles, *, camera: str = "known", device=None, dtype=torch.float32):
@@ -294,7 +293,7 @@ def _photo_target(files: TargetFiles, device, dtype):
         if not np.isfinite(d_fit[m > 0.5]).any():
             raise InputError(f"--depth {files.depth}: expected a valid depth on some of the object's pixels at "
                              f"the fit's resolution, got none")
-    photo = Photo(image, mask, depth, full, (x0, y0, side), scale, unit, files.intrinsics is not None)
+    photo = Photo(image, mask, depth, full, (x0, y0, side), scale, unit)
 
     def t(a):
         return torch.as_tensor(a[None], device=device).to(dtype)
