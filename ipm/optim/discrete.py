@@ -44,6 +44,9 @@ class Space:
     presets: list[tuple[torch.Tensor, dict]] = field(default_factory=list)
     # (x, discrete) -> x posed anew for these discrete values; set when the starts' poses cannot tell
     pose_search: Callable[[torch.Tensor, dict], torch.Tensor] | None = None
+    # (x, discrete) -> x with the outline refit for these discrete values, before part labels judge
+    # them (see outlined); set when part labels are fitted
+    outline: Callable[[torch.Tensor, dict], torch.Tensor] | None = None
 
     def encode(self, d: dict) -> np.ndarray:
         """Discrete values -> genes ``(k,)`` in [0, 1]."""
@@ -103,6 +106,13 @@ def best_pose(ev: Evaluator, space: Space, x: torch.Tensor, d: dict) -> torch.Te
         if loss < best:
             best, best_x = loss, cand
     return best_x
+
+
+def outlined(space: Space, x: torch.Tensor, d: dict) -> torch.Tensor:
+    """``x`` made ready for discrete values ``d`` it was not refined with: where part labels are fitted, a
+    short refinement of the outline alone (``space.outline``), since the labels only tell counts apart
+    once the outline is in place; else ``x`` itself."""
+    return x if space.outline is None else space.outline(x, d)
 
 
 def genome(space: Space, x: torch.Tensor, d: dict) -> np.ndarray:

@@ -66,6 +66,9 @@ class Evaluator:
         self.best = Best()
         self.phase = "start"
         self.last: dict = {}   # the latest record, live or replayed
+        # False while evaluations of another objective run (Problem.use_parts off): counted and recorded,
+        # but not candidates for the best point
+        self.keep_best = True
         self.best_by_discrete: dict[tuple, Best] = {}
         self.t0 = time.perf_counter()
         # the recorded time of the runs before this one (records' "t" count from the first run's start)
@@ -117,7 +120,9 @@ class Evaluator:
                 self.sink(rec)
         self.last = rec
         key = tuple(sorted(disc.items()))
-        if loss < self.best_by_discrete.get(key, Best()).loss:
+        if not self.keep_best:
+            pass
+        elif loss < self.best_by_discrete.get(key, Best()).loss:
             self.best_by_discrete[key] = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count,
                                               extras)
         if loss < self.best.loss:

@@ -34,6 +34,10 @@ __all__ = [
     "yaw_free",
 ]
 
+OUTLINE_SHARE = 0.15  # of the budget: the outline's refinement before a search with part labels
+OUTLINE_STEPS = 0.02  # of the budget: the outline's refinement of a candidate with other discrete values
+
+
 def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float:
     """The Adam step: ``settings.lr`` if given, else the generator's ``mask_lr`` for silhouettes and
     :data:`MESH_LR` for mesh targets."""
@@ -85,6 +89,32 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
             raise BudgetExhausted
         return G.refine(ev, x, d, min(steps, ev.remaining), settings.local, search_lr, mask=prob.search_mask)
 
+    if isinstance(target, MaskTarget) and target.parts is not None and space.discrete:
+        # outline first: part labels decide counts (floors, windows) that leave the outline alone (sizes
+        # per count, Problem.carry), but only where the outline is in place; from a start with other
+        # counts they bend the sizes towards the start's counts. So the start is refined without them,
+        # and the search begins from there.
+        ev.phase = "outline"
+        prob.use_parts = False
+        try:
+            xo, _ = G.refine(ev, starts[0][0], starts[0][1], max(1, int(settings.budget * OUTLINE_SHARE)), "lbfgs",
+                             mask=prob.search_mask)
+        except BudgetExhausted:
+            xo = starts[0][0]
+        prob.use_parts = True
+        ev.forget_best()
+        space.starts[0] = (xo, starts[0][1])
+
+        def outline(x, d):
+            prob.use_parts, ev.keep_best = False, False
+            try:
+                if ev.remaining <= 0:
+                    raise BudgetExhausted
+                steps = min(max(5, int(settings.budget * OUTLINE_STEPS)), ev.remaining)
+                return G.refine(ev, x, d, steps, "lbfgs", mask=prob.search_mask)[0]
+            finally:
+                prob.use_parts, ev.keep_best = True, True
+        space.outline = outline
     polish = int(settings.budget * settings.polish)
     # the tie rule's evaluations (one per searched discrete value) are kept from the polish; those it
     # does not need go back to the winner

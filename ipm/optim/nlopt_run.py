@@ -27,6 +27,7 @@ def minimize(opt, objective: Callable[[np.ndarray, np.ndarray], float], z0: np.n
 
     failures: list[BaseException] = []
     stopped: list[bool] = []
+    calls = [0]
 
     def f(z, grad):
         # A stop is asked for with force_stop() rather than by raising nlopt.ForcedStop in here: LD_LBFGS
@@ -34,6 +35,7 @@ def minimize(opt, objective: Callable[[np.ndarray, np.ndarray], float], z0: np.n
         # inside the next call (SystemError). Calls after a stop evaluate nothing.
         if stopped:
             return math.inf
+        calls[0] += 1
         try:
             return objective(z, grad)
         except BudgetExhausted:
@@ -53,8 +55,14 @@ def minimize(opt, objective: Callable[[np.ndarray, np.ndarray], float], z0: np.n
     except Exception as e:
         # after a stop that was asked for, some algorithms report a generic failure (LD_LBFGS, having
         # seen the infinite value returned above); before it, a failure of nlopt's is a bug: loud
-        if not stopped:
+        # LD_LBFGS's line search also ends with a generic failure when it finds no decrease along its
+        # direction (a loss that is not smooth everywhere: a face's visibility switches); the caller
+        # keeps the best point it saw, as after any other stop
+        if stopped:
+            log.debug("nlopt %s stopped: %s after a forced stop", label, type(e).__name__)
+        elif not failures and label == "lbfgs" and isinstance(e, nlopt.runtime_error) and calls[0] > 1:
+            log.debug("nlopt %s: line search failed after %d evaluations", label, calls[0])
+        else:
             raise
-        log.debug("nlopt %s stopped: %s after a forced stop", label, type(e).__name__)
     if failures:
         raise failures[0]

@@ -73,6 +73,8 @@ class Problem:
         # with a wide blur the 0.5 level of a soft silhouette lies outside the hard one (thin parts
         # such as handles come out too thin against hard masks)
         self.sigma_factor = 1.0
+        # False while the outline is placed before the search (run_fit): part labels then count nothing
+        self.use_parts = True
         self.dtype = dtype
         self.device = target.masks.device if isinstance(target, MaskTarget) else target.mesh.verts.device
         self.start = gen.values(settings.preset, settings.fix)
@@ -358,7 +360,7 @@ class Problem:
                     # wherever that is; the outline places it (on panel5 from one view, Adam with
                     # labels moving the pose lost the start's silhouette IoU 0.82 -> 0.51 in 3 steps)
                     still = (self.mesh_world(x, discrete, pose_grad=False)
-                             if self.target.parts is not None and need_grad else mesh)
+                             if self.target.parts is not None and self.use_parts and need_grad else mesh)
                     loss = loss + self._cue_loss(mesh, self.cameras(x), extras, still)
                 with torch.no_grad():
                     hard = pred > 0.5
@@ -393,7 +395,8 @@ class Problem:
         K = len(cams)
         v, f = mesh.verts, mesh.faces
         total = v.sum() * 0.0
-        if t.parts is not None:
+        parts = t.parts is not None and self.use_parts
+        if parts:
             # the mesh's group of each named part (-2: the mesh has no such part now, e.g. no handle)
             index = [mesh.group_names.index(n) if n in mesh.group_names else -2 for n in t.part_names]
             extras["parts_px"] = []
@@ -411,7 +414,7 @@ class Problem:
                 total = total + s.depth_weight / K * C.depth_loss(d, rast.mask, tgt, obj, self.depth_scales[i])
                 with torch.no_grad():
                     extras["depth_px"].append(C.depth_agreement(d, rast.mask, tgt, obj, self.depth_scales[i]))
-            if t.parts is not None:
+            if parts:
                 soft = self._soft_parts(parts_mesh, rast, detach_camera(cam), index)  # (P, H, W)
                 want = torch.stack([t.parts[i] == k for k in range(len(index))]).to(v.dtype)
                 total = total + s.parts_weight / K * C.parts_loss(soft, want)

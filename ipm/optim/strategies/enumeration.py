@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from ipm.errors import InputError
-from ipm.optim.discrete import Refine, Space, best_pose
+from ipm.optim.discrete import Refine, Space, best_pose, outlined
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
 from ipm.optim.strategies import STRATEGIES
 
@@ -36,8 +36,10 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
     x0 = space.starts[0][0]
     ev.phase = "enumerate:poses"
     try:
-        alive = [(best_pose(ev, space, x0, {**space.fixed_discrete, **c}), {**space.fixed_discrete, **c}, math.inf)
-                 for c in combos]
+        alive = []
+        for c in combos:
+            d = {**space.fixed_discrete, **c}
+            alive.append((outlined(space, best_pose(ev, space, x0, d), d), d, math.inf))
     except BudgetExhausted:
         return
     # successive halving spends about steps0 * len(combos) per round, over log2(len) + 1 rounds

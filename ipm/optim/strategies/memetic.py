@@ -12,7 +12,7 @@ import logging
 import numpy as np
 import torch
 
-from ipm.optim.discrete import MemeticSettings, Refine, Space, best_pose, from_genome, genome
+from ipm.optim.discrete import MemeticSettings, Refine, Space, best_pose, from_genome, genome, outlined
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
 from ipm.optim.strategies import STRATEGIES
 
@@ -28,6 +28,10 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
 
     def random_individual() -> tuple[torch.Tensor, dict]:
         g = rng.random(len(space.gen) + len(space.discrete))
+        if space.outline is not None:
+            # the outline was fitted first (part labels): new individuals share its sizes and differ in
+            # their discrete values, which the labels judge once the outline is refit for them
+            g[: len(space.gen)] = pose0.numpy()[space.gen]
         return from_genome(space, g, pose0)
 
     ev.phase = "memetic:init"
@@ -36,9 +40,21 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
     # (diverse discrete values), then random individuals
     # (when the start looks alike from every yaw, its poses are one start: pose_search poses the rest)
     n_starts = 1 if space.pose_search is not None else max(1, s.population // 2)
-    candidates = list(space.starts[:n_starts]) + list(space.presets)
-    while len(candidates) < s.population:
-        candidates.append(random_individual())
+    if space.outline is None:
+        candidates = list(space.starts[:n_starts]) + list(space.presets)
+        while len(candidates) < s.population:
+            candidates.append(random_individual())
+    else:
+        # part labels: the outline is fitted (the first start) and what is searched is the discrete
+        # values, so the rest of the population spreads them evenly over their ranges (each value of
+        # each discrete parameter about equally often), on the fitted outline
+        n_starts = 1
+        candidates = list(space.starts[:1])
+        k = s.population - 1
+        strata = np.stack([(rng.permutation(k) + rng.random(k)) / k for _ in space.discrete], axis=1)
+        for z in strata:
+            x, _ = random_individual()
+            candidates.append((x, space.decode(z)))
     tried: set[tuple] = set()
 
     def key(d: dict) -> tuple:
@@ -55,13 +71,14 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
                 if d == elite[1] or (key(d), origin) in tried:
                     continue
                 tried.add((key(d), origin))
-                xr, loss = refine(elite[0], d, s.refine_steps)
+                xr, loss = refine(outlined(space, elite[0], d), d, s.refine_steps)
                 out.append((xr, d, loss))
         return out
 
     try:
         for i, (x, d) in enumerate(candidates[: s.population]):
-            xr, loss = refine(x if i < n_starts else best_pose(ev, space, x, d), d, s.refine_steps)
+            xr, loss = refine(x if i < n_starts else outlined(space, best_pose(ev, space, x, d), d), d,
+                              s.refine_steps)
             pop.append((xr, d, loss))
         best = min(p[2] for p in pop)
         stall, generation = 0, 0
@@ -85,7 +102,7 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
                 child[mut] += rng.normal(0.0, s.sigma_mutation, int(mut.sum()))
                 child = np.clip(child, 0.0, 1.0)
                 x, d = from_genome(space, child, pop[a][0])  # pose and camera come from parent a
-                xr, loss = refine(x, d, s.refine_steps)
+                xr, loss = refine(x if d == pop[a][1] else outlined(space, x, d), d, s.refine_steps)
                 children.append((xr, d, loss))
             if s.neighbours:
                 ev.phase = f"memetic:gen{generation}:neighbours"
@@ -107,7 +124,7 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
                 pop = [keep]
                 for _ in range(s.population - 1):
                     x, d = random_individual()
-                    x = best_pose(ev, space, x, d)
+                    x = outlined(space, best_pose(ev, space, x, d), d)
                     xr, loss = refine(x, d, s.refine_steps)
                     pop.append((xr, d, loss))
                 stall = 0
