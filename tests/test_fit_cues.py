@@ -243,6 +243,27 @@ def test_depth_shows_a_handle_the_silhouette_hides(tmp_path):
     assert float(without[0]) > float(with_h[0]) + 0.05
 
 
+@pytest.mark.slow
+@pytest.mark.parametrize("strategy", ["enumerate", "memetic"])
+def test_depth_finds_the_hidden_handle(tmp_path, capsys, strategy):
+    """One view, silhouette + depth, started from the handle-less default: the fit switches the handle on
+    and points it at the camera. The body is a body of revolution, so only the handle's direction in the
+    world (pose yaw + handle azimuth) is determined; it must be within 15 degrees of the target's."""
+    code, _, err = _cli(["render", "dishes", "--preset", "mug", "--set", "handle_azimuth=-60", "--views", "1",
+                         "--size", "128", "--no-previews", "-o", str(tmp_path / "m")])
+    assert code == 0, err
+    capsys.readouterr()  # the render's report
+    code, out, err = run_cli(["fit", "dishes", "--masks", tmp_path / "m", "--depth", tmp_path / "m",
+                              "--discrete", strategy, "--budget", 600, "--threads", 1, "--json",
+                              "-o", tmp_path / "fit"], capsys)
+    assert code == 0, err
+    fitted = json.loads((tmp_path / "fit" / "params.json").read_text())
+    assert fitted["params"]["has_handle"] == 1
+    world = fitted["pose"]["yaw_deg"] + fitted["params"]["handle_azimuth"]
+    assert abs((world - (-60.0) + 180.0) % 360.0 - 180.0) <= 15.0
+    assert json.loads(out)["iou_mean"] > 0.95
+
+
 # -- photos -----------------------------------------------------------------------------------------------
 
 def test_photo_target_crops_and_scales_the_cleargrasp_mug():
