@@ -27,6 +27,12 @@
     discrete = "memetic"
 
     [[methods]]
+    name = "ipm-dishes+depth"
+    method = "ipm"
+    generator = "dishes"
+    cues = ["depth"]                  # also given the input views' depth maps ("parts:handle": handle labels)
+
+    [[methods]]
     name = "visual-hull"
     method = "visual-hull"
     views = [2, 6, 12]                # a method may override the views it is given
@@ -200,13 +206,33 @@ def _convert(data, schema, where: str):
     return out
 
 
+def _check_cues(cues, target: TargetSpec) -> None:
+    """:class:`InputError` unless ``target`` can show the ``cues`` (:class:`ipm.bench.methods.Cues`):
+    depth maps come from any target mesh, part labels only from a generator sample's parts."""
+    if not cues.parts:
+        return
+    if target.generator is None:
+        raise InputError(f"target {target.name}: setting cues: expected parts of a generator target, got "
+                         f"{', '.join(cues.names())} for the mesh file {target.mesh} (it has no part labels; "
+                         "give this method generator targets, or depth only)")
+    from ipm.generators import get_generator
+
+    gen = get_generator(target.generator)
+    known = tuple(gen.parts) or gen.to_mesh(gen.values(target.preset, target.params)).group_names
+    unknown = [p for p in cues.parts if p not in known]
+    if unknown:
+        raise InputError(f"target {target.name}: setting cues: expected parts of {gen.name} "
+                         f"({', '.join(known) or 'none'}), got {', '.join(unknown)}")
+
+
 def load_experiment(path: str | Path) -> Experiment:
     """Parse and check an experiment file; :class:`~ipm.errors.InputError` names the file and the problem.
 
     Everything a run needs is checked here, without running: keys (unknown ones are refused), types and
-    ranges, names, and every method's settings for every target it applies to
-    (:func:`ipm.bench.methods.check_settings`: unknown generators, presets and settings keys)."""
-    from ipm.bench.methods import check_settings
+    ranges, names, every method's settings for every target it applies to
+    (:func:`ipm.bench.methods.check_settings`: unknown generators, presets and settings keys), and that
+    the cues a method asks for can be drawn from those targets (:func:`_check_cues`)."""
+    from ipm.bench.methods import check_settings, requested_cues
 
     path = Path(path)
     if not path.is_file():
@@ -261,6 +287,8 @@ def load_experiment(path: str | Path) -> Experiment:
         for t in applies or targets[:1]:
             try:
                 check_settings(mk.method, spec.settings_for(t))
+                if applies:
+                    _check_cues(requested_cues(mk.method, spec.settings_for(t)), t)
             except InputError as e:
                 raise InputError(f"{path}: method {mk.name}" + (f", target {t.name}" if mk.by_class else "")
                                  + f": {e}") from None

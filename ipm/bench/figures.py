@@ -56,6 +56,7 @@ def write_contact_sheets(exp_path: str | Path, exp: Experiment, rows: list[dict]
         if not cells:
             continue
         target = load_target(str(Path(exp_path).resolve()), t.name).mesh
+        target = TriMesh(target.verts, target.faces)  # one grey like the predictions, not colored by part
         pictures, labels = [render_preview(target, cam, size=size)], [f"{t.name} (target)"]
         for r in cells:
             tm = trimesh.load(mesh_path(out_dir, r["key"]), force="mesh", process=False)

@@ -22,7 +22,16 @@ import numpy as np
 import torch
 
 from ipm.bench.config import Cell, Experiment, load_experiment
-from ipm.bench.protocol import align_scale, check_border, hidden_discrete, render_masks, scale_about
+from ipm.bench.methods import NO_CUES, Cues
+from ipm.bench.protocol import (
+    Views,
+    align_scale,
+    check_border,
+    hidden_discrete,
+    render_masks,
+    render_views,
+    scale_about,
+)
 from ipm.errors import InputError, MethodFailed
 from ipm.types import TriMesh
 
@@ -34,6 +43,7 @@ ROWS = "rows.jsonl"
 class BenchTarget:
     """A target in the protocol's frame (DESIGN.md v2: unit bounding sphere about the bounding-box center).
 
+    mesh: a generator sample keeps its face groups (its parts: what part-label cues show);
     frame: the ``(center, scale)`` that took the source to that frame; truth and generator: a generator
     sample's parameters and generator name (None for a mesh file)."""
 
@@ -50,7 +60,7 @@ def load_target(exp_path: str, name: str) -> BenchTarget:
 
     exp = load_experiment(exp_path)
     t = exp.target(name)
-    truth, gen_name = None, None
+    truth, gen_name, groups, names = None, None, None, ()
     if t.mesh is not None:
         from ipm.io.meshes import load_mesh
 
@@ -67,9 +77,9 @@ def load_target(exp_path: str, name: str) -> BenchTarget:
             values = gen.spec.validate({**values, **gen.spec.random(np.random.default_rng(t.seed)), **t.params})
         m = gen.to_mesh(values)
         V, F = m.verts.detach().double().numpy(), m.faces.numpy()
-        truth, gen_name = values, gen.name
+        truth, gen_name, groups, names = values, gen.name, m.groups, m.group_names
     center, scale = unit_sphere_frame(V[np.unique(F)])
-    mesh = TriMesh(torch.as_tensor((V - center) * scale), torch.as_tensor(F))
+    mesh = TriMesh(torch.as_tensor((V - center) * scale), torch.as_tensor(F), groups, names)
     return BenchTarget(mesh, (center, scale), truth, gen_name)
 
 
@@ -97,6 +107,19 @@ def target_masks(exp_path: str, name: str, views: int | None) -> np.ndarray:
     return masks
 
 
+@lru_cache(maxsize=64)
+def target_views(exp_path: str, name: str, views: int, cues: Cues = NO_CUES) -> Views:
+    """Target ``name`` in the K protocol input views: its exact masks (:func:`target_masks`) and the
+    ``cues`` a method asked for (:func:`ipm.bench.protocol.render_views`: depth maps, part labels)."""
+    masks = target_masks(exp_path, name, views)
+    if not cues:
+        return Views(masks)
+    exp = load_experiment(exp_path)
+    seen = render_views(load_target(exp_path, name).mesh, _input_cameras(exp, views), depth=cues.depth,
+                        parts=cues.parts)
+    return Views(masks, seen.depth, seen.parts, seen.part_names)
+
+
 def check_targets(exp_path: str, exp: Experiment) -> None:
     """Render every target in every input view set a cell will show it and in the held-out views, and
     refuse (``ValueError``) any that the views clip, before a single cell runs."""
@@ -110,13 +133,13 @@ def check_targets(exp_path: str, exp: Experiment) -> None:
 
 
 @lru_cache(maxsize=64)
-def _hidden(exp_path: str, name: str, views: int) -> dict:
+def _hidden(exp_path: str, name: str, views: int, cues: Cues = NO_CUES) -> dict:
     from ipm.generators import get_generator
 
     exp = load_experiment(exp_path)
     t = load_target(exp_path, name)
     return hidden_discrete(get_generator(t.generator), t.truth, t.frame, _input_cameras(exp, views),
-                           target_masks(exp_path, name, views))
+                           target_views(exp_path, name, views, cues))
 
 
 def param_error(pred: dict, truth: dict, gen_name: str) -> dict:
@@ -143,9 +166,13 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
     (:func:`ipm.bench.protocol.align_scale`, recorded as ``align_scale``; 1.0 for K >= 2, which are not
     aligned). With ``out_dir`` the scored mesh is written to :func:`mesh_path`, so anyone can re-score
     it. Rows of generator samples list the discrete parameters the input views hide
-    (``hidden_discrete``, :func:`ipm.bench.protocol.hidden_discrete`).
+    (``hidden_discrete``, :func:`ipm.bench.protocol.hidden_discrete`), with the cues the method was given.
+
+    A method that asks for cues (:meth:`ipm.bench.methods.Method.cues`) gets them in its
+    :class:`~ipm.bench.methods.Task` (:func:`target_views`) and its row lists them (``cues``:
+    ``["depth", "parts:windows"]``).
     """
-    from ipm.bench.methods import METHODS, Task
+    from ipm.bench.methods import METHODS, Task, requested_cues
     from ipm.io.export import export_mesh
     from ipm.metrics import mask_iou, shape_scores
 
@@ -155,10 +182,14 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
     spec = exp.method(cell.method)
     target = load_target(exp_path, cell.target)
     cams = _input_cameras(exp, cell.views)
-    task = Task(target_masks(exp_path, cell.target, cell.views), cams)
+    settings = spec.settings_for(exp.target(cell.target))
+    cues = requested_cues(spec.method, settings)
+    seen = target_views(exp_path, cell.target, cell.views, cues)
+    task = Task(seen.masks, cams, seen.depth, seen.parts, seen.part_names)
     t0 = time.perf_counter()
     row = {"target": cell.target, "method": cell.method, "views": cell.views, "seed": cell.seed, "key": cell.key}
-    settings = spec.settings_for(exp.target(cell.target))
+    if cues:
+        row["cues"] = cues.names()
     try:
         pred = METHODS[spec.method](task, settings, exp.budget, cell.seed)
     except MethodFailed as e:
@@ -183,7 +214,7 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
     row.update(s.to_json())
     row.update(status="ok", evaluations=pred.evaluations, wall_time_s=round(pred.wall_time_s, 3))
     if target.truth is not None:
-        row["hidden_discrete"] = _hidden(exp_path, cell.target, cell.views)
+        row["hidden_discrete"] = _hidden(exp_path, cell.target, cell.views, cues)
         if "params" in pred.info and settings.get("generator") == target.generator:
             row.update(param_error(pred.info["params"], target.truth, target.generator))
     return row

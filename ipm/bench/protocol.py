@@ -12,7 +12,10 @@ target the input views hide.
   search). Nothing else is aligned: pose, shape and hidden parts are the method's.
 - **Hidden parts.** A discrete value of a generator sample that no input view can show (a handle behind
   the body, a window count inside the outline) is a property of the input: :func:`hidden_discrete`
-  lists the discrete parameters one of whose neighbouring values draws the same input masks.
+  lists the discrete parameters one of whose neighbouring values draws the same input masks (and, for
+  a method given cues, the same depth maps and part labels).
+- **Cues from the exact rasterizer.** Depth maps and part labels of the input views, for methods that
+  take them, come from the same exact rasterization as the masks (:func:`render_views`).
 """
 
 from __future__ import annotations
@@ -107,18 +110,70 @@ def render_masks(mesh: TriMesh, cameras: Sequence[Camera]) -> np.ndarray:
     return np.stack([rasterize_mesh(mesh, c).mask.cpu().numpy().astype(bool) for c in cameras])
 
 
+@dataclass(frozen=True)
+class Views:
+    """What views show of a mesh: masks (K, H, W) bool; depth (K, H, W) float64 view-axis depth in scene
+    units, NaN off the object; parts (K, H, W) int64, ``k`` where the visible face belongs to the mesh's
+    group ``part_names[k]``, -1 where it shows none of them (background, or another part). ``depth`` and
+    ``parts`` are None unless asked for."""
+
+    masks: np.ndarray
+    depth: np.ndarray | None = None
+    parts: np.ndarray | None = None
+    part_names: tuple[str, ...] = ()
+
+
+def render_views(mesh: TriMesh, cameras: Sequence[Camera], *, depth: bool = False,
+                 parts: Sequence[str] = ()) -> Views:
+    """Masks and, when asked, depth maps and the labels of the parts named ``parts`` (the mesh's groups,
+    as ``ipm render`` writes them), from one exact rasterization per camera (the one :func:`render_masks`
+    makes, so the cues cover exactly the masks' pixels). A named part the mesh does not have (a mug
+    without a handle) is nowhere. ``InputError`` when ``parts`` are asked of a mesh without groups."""
+    from ipm.render.raster import rasterize_mesh
+
+    parts = tuple(parts)
+    lut = None
+    if parts:
+        if mesh.groups is None or not mesh.group_names:
+            raise InputError(f"part labels {', '.join(parts)}: expected a mesh with named parts (a generator "
+                             "sample), got one without")
+        # mesh group -> index in ``parts`` (-1: not a named part); the last entry serves empty pixels
+        lut = torch.tensor([parts.index(n) if n in parts else -1 for n in mesh.group_names] + [-1],
+                           dtype=torch.int64)
+    masks, depths, labels = [], [], []
+    for cam in cameras:
+        fr = rasterize_mesh(mesh, cam)
+        masks.append(fr.mask.cpu().numpy().astype(bool))
+        if depth:
+            depths.append(torch.where(fr.mask, fr.depth, torch.nan).cpu().numpy())
+        if lut is not None:
+            group = torch.where(fr.mask, mesh.groups.to(fr.face.device)[fr.face.clamp_min(0)], -1)
+            labels.append(lut.to(group.device)[group].cpu().numpy())
+    return Views(np.stack(masks), np.stack(depths) if depth else None, np.stack(labels) if parts else None,
+                 parts)
+
+
 def hidden_discrete(gen, values: dict, frame: tuple[np.ndarray, float], cameras: Sequence[Camera],
-                    masks: np.ndarray, tolerance: float = HIDDEN_TOLERANCE) -> dict[str, list[int]]:
+                    seen: Views, tolerance: float = HIDDEN_TOLERANCE) -> dict[str, list[int]]:
     """Discrete parameters of a generator sample whose neighbouring values (``v - 1``, ``v + 1`` within
-    bounds) draw the same input masks: ``{name: [those values]}``.
+    bounds) draw the same input views: ``{name: [those values]}``.
 
     gen: a mesh generator; values: the sample's parameters; frame: the ``(center, scale)`` that put the
     sample in the protocol's frame (the neighbours get the same one: the object is the same, only a part
-    differs); masks: the sample's input masks (K, H, W). Two mask sets are the same when in no view they
-    differ in more than ``tolerance`` of the sample's pixels in that view (one pixel always may).
+    differs); seen: the sample's input views (:func:`render_views`: masks, and the depth and part labels a
+    method is given, if any). A pixel differs when its mask does, or, where given, its part label, or its
+    depth by more than the depth loss's knee (:data:`ipm.losses.cues.DEPTH_KNEE` of the view's median
+    depth, what the fit's tie rule counts). Two view sets are the same when in no view more than
+    ``tolerance`` of the sample's pixels in that view differ (one pixel always may).
     """
+    from ipm.losses.cues import DEPTH_KNEE
+
     center, scale = frame
+    masks = seen.masks
     allowed = np.maximum(1, (tolerance * masks.sum((1, 2))).astype(np.int64))
+    knee = None
+    if seen.depth is not None:
+        knee = DEPTH_KNEE * np.array([np.median(d[np.isfinite(d)]) for d in seen.depth])[:, None, None]
     out: dict[str, list[int]] = {}
     for p in gen.spec.discrete:
         same = []
@@ -129,8 +184,15 @@ def hidden_discrete(gen, values: dict, frame: tuple[np.ndarray, float], cameras:
             if m.n_faces == 0:
                 continue
             verts = (m.verts.detach().double() - torch.as_tensor(center)) * scale
-            other = render_masks(TriMesh(verts, m.faces), cameras)
-            if np.all((other != masks).sum((1, 2)) <= allowed):
+            other = render_views(TriMesh(verts, m.faces, m.groups, m.group_names), cameras,
+                                 depth=seen.depth is not None, parts=seen.part_names)
+            differ = other.masks != masks
+            if seen.depth is not None:
+                both = other.masks & masks
+                differ |= both & ~(np.abs(np.nan_to_num(other.depth) - np.nan_to_num(seen.depth)) <= knee)
+            if seen.parts is not None:
+                differ |= other.parts != seen.parts
+            if np.all(differ.sum((1, 2)) <= allowed):
                 same.append(v)
         if same:
             out[p.name] = same

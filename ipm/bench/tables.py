@@ -153,22 +153,26 @@ def class_summary(rows: list[dict], classes: dict[str, str], fits: set[str], *, 
 
 def hidden_markdown(rows: list[dict]) -> str:
     """Which discrete parts of generator samples the input views hide (DESIGN.md: tables say so), one line
-    per target and number of views; empty when no row knows (real meshes)."""
-    seen: dict[tuple[str, int], dict] = {}
+    per target, number of views and cues given besides the masks (rows of methods given depth or part
+    labels see more); empty when no row knows (real meshes)."""
+    seen: dict[tuple[str, int, tuple[str, ...]], dict] = {}
     for r in rows:
         if r.get("status") == "ok" and "hidden_discrete" in r:
-            seen.setdefault((r["target"], r["views"]), r["hidden_discrete"])
+            seen.setdefault((r["target"], r["views"], tuple(r.get("cues", ()))), r["hidden_discrete"])
     if not seen:
         return ""
     from ipm.bench.protocol import HIDDEN_TOLERANCE
+    from ipm.losses.cues import DEPTH_KNEE
 
     lines = ["### Discrete parts the input views hide", "",
              "A discrete parameter is listed when a neighbouring value draws the same input masks (within "
              f"{100 * HIDDEN_TOLERANCE:g} % of the target's pixels in each view): no method can tell it from the "
-             "views.", ""]
-    for (t, k), hidden in sorted(seen.items()):
+             f"views. With cues, also the same depth (within {100 * DEPTH_KNEE:g} % of the view's median depth) "
+             "and the same part labels.", ""]
+    for (t, k, cues), hidden in sorted(seen.items()):
         what = ", ".join(f"{n} (also {', '.join(map(str, v))})" for n, v in sorted(hidden.items())) or "none"
-        lines.append(f"- {t}, {k} view{'s' if k > 1 else ''}: {what}")
+        given = f" with {', '.join(cues)}" if cues else ""
+        lines.append(f"- {t}, {k} view{'s' if k > 1 else ''}{given}: {what}")
     return "\n".join(lines) + "\n"
 
 

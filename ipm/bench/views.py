@@ -1,6 +1,6 @@
 """What the silhouette baselines share about their input views: the masks reduced to a workable size
-(:func:`fit_views`), the checks of a task (:func:`check_task`) and the visual hull on a grid
-(:func:`carve`, :func:`hull_box`)."""
+(:func:`fit_views`, and the cues with them: :func:`fit_cues`), the checks of a task (:func:`check_task`)
+and the visual hull on a grid (:func:`carve`, :func:`hull_box`)."""
 
 from __future__ import annotations
 
@@ -46,14 +46,50 @@ def fit_views(masks: np.ndarray, cameras: list[Camera], max_size: int, dtype: to
     K, H, W = masks.shape
     dev = cameras[0].eye.device
     target = torch.as_tensor(np.asarray(masks), dtype=dtype, device=dev)
-    f = next((f for f in range(max(1, math.ceil(max(H, W) / max_size)), max(H, W) + 1)
-              if H % f == 0 and W % f == 0), 1)
+    f = reduction(H, W, max_size)
     cams = [c.to(dtype) for c in cameras]
     if f == 1:
         return target, cams
     target = F.avg_pool2d(target[:, None], f)[:, 0]
     return target, [Camera(c.eye, c.target, c.up, c.fov_deg, W // f, H // f,
                            None if c.cx is None else c.cx / f, None if c.cy is None else c.cy / f) for c in cams]
+
+
+def reduction(H: int, W: int, max_size: int) -> int:
+    """The factor :func:`fit_views` reduces an ``H`` x ``W`` image by: the smallest integer dividing both
+    sides that brings the longer one to at most ``max_size`` (1 if none does)."""
+    return next((f for f in range(max(1, math.ceil(max(H, W) / max_size)), max(H, W) + 1)
+                 if H % f == 0 and W % f == 0), 1)
+
+
+def fit_cues(depth: np.ndarray | None, parts: np.ndarray | None, max_size: int, dtype: torch.dtype = DTYPE,
+             device=None) -> tuple[torch.Tensor | None, torch.Tensor | None]:
+    """Depth maps (K, H, W) (NaN: no reading) and part labels (K, H, W) int (-1: none) reduced with the
+    masks (:func:`fit_views`, same blocks): a block's depth is the mean of its readings (NaN without
+    any), its label the most common one in it (ties to the lower label, -1 first). Either may be None."""
+    out = []
+    for a in (depth, parts):
+        if a is None:
+            out.append(None)
+            continue
+        t = torch.as_tensor(np.asarray(a), device=device)
+        K, H, W = t.shape
+        f = reduction(H, W, max_size)
+        if a is depth:
+            t = t.to(dtype)
+            if f > 1:
+                ok = torch.isfinite(t)
+                n = F.avg_pool2d(ok[:, None].to(dtype), f)[:, 0]
+                s = F.avg_pool2d(torch.where(ok, t, 0.0)[:, None], f)[:, 0]
+                t = torch.where(n > 0, s / n.clamp_min(1e-12), torch.nan)
+        elif f > 1:
+            labels = torch.arange(-1, int(t.max()) + 1, device=t.device)
+            share = torch.stack([F.avg_pool2d((t == v)[:, None].to(DTYPE), f)[:, 0] for v in labels])
+            t = labels[share.argmax(0)]
+        else:
+            t = t.to(torch.int64)
+        out.append(t)
+    return out[0], out[1]
 
 
 def grid_axis(n: int, extent: float, dtype=torch.float64, device=None) -> torch.Tensor:

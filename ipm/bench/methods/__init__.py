@@ -9,11 +9,18 @@ Settings are parsed once, by the method's parser (a ``msgspec.Struct`` with cons
 function), both by :func:`check_settings` (an experiment checked before any cell runs) and by the
 method itself when it runs, so checking and running cannot disagree. Bad settings raise
 :class:`~ipm.errors.InputError` naming the method, the setting and what is allowed.
+
+Cues beyond silhouettes (issue #13): a method that can use depth maps or part labels of its input views
+takes a ``cues`` setting (``["depth"]``, ``["parts:windows"]``: which cues the "user" supplies), parsed by
+:func:`parse_cues` into a :class:`Cues` held as the ``cues`` attribute of its parsed settings. The harness
+reads it (:meth:`Method.cues`), renders those cues of the input views from the target
+(:func:`ipm.bench.protocol.render_views`) and fills the matching fields of the :class:`Task`; a method
+without a ``cues`` setting gets masks and cameras only (and refuses the key as an unknown setting).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,10 +33,38 @@ from ipm.types import Camera, TriMesh
 
 @dataclass
 class Task:
-    """What a method sees: K input masks ``(K, H, W)`` bool and their cameras."""
+    """What a method sees: K input masks ``(K, H, W)`` bool and their cameras, and the cues it asked for.
+
+    depth: (K, H, W) float64 view-axis depth of the target in scene units, NaN off the object (only
+    with the ``depth`` cue); parts: (K, H, W) int64, ``k`` where the pixel shows the target's part
+    ``part_names[k]``, -1 where it shows none of them (background or another part; only with a
+    ``parts`` cue)."""
 
     masks: np.ndarray
     cameras: list[Camera]
+    depth: np.ndarray | None = None
+    parts: np.ndarray | None = None
+    part_names: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class Cues:
+    """Which cues of its input views a method is given besides the masks: ``depth`` and the names of the
+    parts whose labels it sees (empty: none). The setting's text form is :meth:`names`."""
+
+    depth: bool = False
+    parts: tuple[str, ...] = ()
+
+    def __bool__(self) -> bool:
+        return self.depth or bool(self.parts)
+
+    def names(self) -> list[str]:
+        """``["depth", "parts:windows", ...]``: the setting that asks for these cues."""
+        return (["depth"] if self.depth else []) + [f"parts:{p}" for p in self.parts]
+
+
+NO_CUES = Cues()
+CUE_FORMS = "depth, parts (every part) or parts:NAME"
 
 
 @dataclass
@@ -54,6 +89,15 @@ class Method:
 
     def __call__(self, task: Task, settings: dict, budget: int, seed: int) -> Prediction:
         return self.run(task, self.parse(self.name, settings), budget, seed)
+
+    def cues(self, settings: dict) -> Cues:
+        """The cues the method asks for with these settings: the ``cues`` attribute of its parsed
+        settings (:func:`parse_cues`), none without one."""
+        cues = getattr(self.parse(self.name, settings), "cues", NO_CUES)
+        if not isinstance(cues, Cues):  # a member's bug, not the user's input
+            raise TypeError(f"bench method {self.name}: its parsed settings' cues must be a Cues (parse_cues), "
+                            f"got {type(cues).__name__}")
+        return cues
 
     def __repr__(self) -> str:
         return f"<bench method {self.name!r}>"
@@ -82,6 +126,41 @@ def check_settings(method: str, settings: dict) -> None:
         raise InputError(f"{method}: settings: expected a table of settings, got {type(settings).__name__}")
     if isinstance(m, Method):
         m.parse(method, settings)
+
+
+def requested_cues(method: str, settings: dict) -> Cues:
+    """The cues ``method`` asks for with ``settings`` (:meth:`Method.cues`; none for members registered as
+    plain functions). Bad settings raise :class:`InputError` as in :func:`check_settings`."""
+    m = METHODS.get(method)
+    return m.cues(settings) if isinstance(m, Method) else NO_CUES
+
+
+def parse_cues(method: str, value: object, parts: Sequence[str]) -> Cues:
+    """The ``cues`` setting of ``method``: a list of ``"depth"``, ``"parts"`` (every name in ``parts``) and
+    ``"parts:NAME"`` (NAME one of ``parts``, the parts the method can be told about), each at most once.
+    :class:`InputError` names the setting and what is allowed."""
+    def bad(why: str) -> InputError:
+        names = f" (NAME one of {', '.join(parts)})" if parts else " (no parts here: depth only)"
+        return InputError(f"{method}: setting cues: expected a list of {CUE_FORMS}{names}, got {value!r}{why}")
+
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise bad("")
+    depth, named = False, []
+    for v in value:
+        kind, _, name = v.partition(":")
+        if v == "depth":
+            if depth:
+                raise bad(": depth given twice")
+            depth = True
+        elif kind == "parts" and v in ("parts", *(f"parts:{p}" for p in parts)) and parts:
+            new = list(parts) if v == "parts" else [name]
+            twice = [p for p in new if p in named]
+            if twice:
+                raise bad(f": part {twice[0]} given twice")
+            named += new
+        else:
+            raise bad(f": {v!r} is not one of these")
+    return Cues(depth, tuple(named))
 
 
 # -- msgspec settings --------------------------------------------------------------------------------

@@ -2,8 +2,14 @@
 
 Settings: ``generator`` (required: a generator name, a tree preset or a tree file), ``preset`` (one of
 that generator's presets), ``max_size`` (box-filter the masks to at most this many pixels a side
-first, as the baselines do: :func:`ipm.bench.views.fit_views`; default: full size) and any field of
-:class:`~ipm.optim.fit.FitSettings` except ``budget`` and ``seed`` (the bench's own).
+first, as the baselines do: :func:`ipm.bench.views.fit_views`; default: full size), ``cues`` (what the
+fit is given besides the masks: ``"depth"``, ``"parts"`` or ``"parts:NAME"`` for NAME among the
+generator's parts, :func:`ipm.bench.methods.parse_cues`; mesh generators only; default none) and any
+field of :class:`~ipm.optim.fit.FitSettings` except ``budget`` and ``seed`` (the bench's own), the cue
+weights ``depth_weight`` and ``parts_weight`` among them.
+
+The cues the task carries go into the fit's :class:`~ipm.optim.targets.MaskTarget` (reduced with the
+masks under ``max_size``: :func:`ipm.bench.views.fit_cues`).
 """
 
 from __future__ import annotations
@@ -13,7 +19,7 @@ from dataclasses import dataclass, fields
 
 import torch
 
-from ipm.bench.methods import Prediction, Task, method
+from ipm.bench.methods import NO_CUES, Cues, Prediction, Task, method, parse_cues
 from ipm.errors import InputError
 from ipm.types import TriMesh
 
@@ -26,6 +32,7 @@ class IpmSettings:
     generator: object          # the Generator instance
     max_size: int | None
     fit: dict                  # FitSettings fields (preset included)
+    cues: Cues = NO_CUES       # what the harness renders besides the masks (read by Method.cues)
 
 
 def _fit_fields() -> list[str]:
@@ -40,7 +47,7 @@ def parse_settings(name: str, settings: dict) -> IpmSettings:
     from ipm.optim.fit import FitSettings
 
     fit_fields = _fit_fields()
-    known = {"generator", "max_size", *fit_fields}
+    known = {"generator", "max_size", "cues", *fit_fields}
     unknown = sorted(set(settings) - known)
     if unknown:
         raise InputError(f"{name}: unknown setting(s) {', '.join(map(repr, unknown))}; expected some of: "
@@ -63,28 +70,33 @@ def parse_settings(name: str, settings: dict) -> IpmSettings:
                                  or not MAX_SIZE[0] <= max_size <= MAX_SIZE[1]):
         raise InputError(f"{name}: setting max_size: expected an integer in [{MAX_SIZE[0]}, {MAX_SIZE[1]}], "
                          f"got {max_size!r}")
-    fit = {k: v for k, v in settings.items() if k not in ("generator", "max_size")}
+    cues = NO_CUES
+    if "cues" in settings:
+        if gen.kind != "mesh":
+            raise InputError(f"{name}: setting cues: expected none for the SDF generator {g} (depth and part "
+                             f"labels are compared on a mesh generator's faces), got {settings['cues']!r}")
+        parts = tuple(gen.parts) or gen.to_mesh(gen.values(preset)).group_names
+        cues = parse_cues(name, settings["cues"], parts)
+    fit = {k: v for k, v in settings.items() if k not in ("generator", "max_size", "cues")}
     try:  # types and ranges as declared by FitSettings (msgspec), the registries' names
         FitSettings(budget=1, seed=0, **fit).check()
     except (TypeError, ValueError) as e:
         raise InputError(f"{name}: setting {e}") from None
-    return IpmSettings(gen, max_size, fit)
+    return IpmSettings(gen, max_size, fit, cues)
 
 
 @method(NAME, parse_settings)
 def ipm_fit(task: Task, s: IpmSettings, budget: int, seed: int) -> Prediction:
-    """Fit a generator to the masks (module docstring)."""
+    """Fit a generator to the masks and the cues of the task (module docstring)."""
+    from ipm.bench.views import fit_cues, fit_views
     from ipm.optim.fit import FitSettings, MaskTarget, run_fit
 
-    if s.max_size is not None:
-        from ipm.bench.views import fit_views
-
-        masks, cams = fit_views(task.masks, task.cameras, s.max_size, torch.float32)
-    else:
-        masks = torch.as_tensor(task.masks, dtype=torch.float32)
-        cams = [c.to(torch.float32) for c in task.cameras]
+    size = s.max_size if s.max_size is not None else max(task.masks.shape[1:])
+    masks, cams = fit_views(task.masks, task.cameras, size, torch.float32)
+    depth, parts = fit_cues(task.depth, task.parts, size, torch.float32)
+    target = MaskTarget(masks, cams, depth=depth, parts=parts, part_names=task.part_names if parts is not None else ())
     t0 = time.perf_counter()
-    res, prob, best = run_fit(s.generator, MaskTarget(masks, cams), FitSettings(budget=budget, seed=seed, **s.fit))
+    res, prob, best = run_fit(s.generator, target, FitSettings(budget=budget, seed=seed, **s.fit))
     mesh = prob.mesh_world(best["x"].to(torch.float64), best["discrete"]).detach()
     return Prediction(TriMesh(mesh.verts.double(), mesh.faces), res.evaluations, time.perf_counter() - t0,
                       {"params": res.params, "discrete": best["discrete"], "loss": res.loss})
