@@ -45,18 +45,62 @@ def test_native_and_eager_match_the_reference_off_screen_and_close_up():
         assert (soft_silhouette(verts, faces, cam, sigma=1.5, backend=backend) - ref).abs().max() <= 1e-5
 
 
-def test_thread_counts_agree():
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_degenerate_triangles_match_the_reference(dtype):
+    """Segments (repeated or collinear vertices) and slivers: the rows' pixel runs (from the triangle
+    grown by the blur radius) must still hold every pixel within reach."""
+    line = torch.tensor([[-0.6, -0.2, 0.1], [0.0, 0.1, 0.0], [0.5, 0.35, -0.05], [0.3, -0.5, 0.2]], dtype=dtype)
+    sliver = line[2] + torch.tensor([1e-7, -1e-7, 0.0], dtype=dtype)
+    verts = torch.cat([line, sliver[None]])
+    faces = torch.tensor([[0, 0, 1], [0, 1, 2], [2, 1, 0], [3, 2, 2], [0, 2, 4], [1, 4, 0]])
+    cam = look_at_camera([0.2, 0.3, 2.0], [0.0, 0.0, 0.0], fov_deg=50.0, width=40, height=36)
+    for sigma in (0.5, 2.0):
+        ref = reference_soft_silhouette(verts.double(), faces, cam, sigma)
+        assert ref.max() > 0.3
+        assert (soft_silhouette(verts, faces, cam, sigma=sigma, backend="native") - ref).abs().max() <= 2e-5
+
+
+def test_thread_counts_agree(monkeypatch):
+    monkeypatch.setattr(soft, "_ADAPT_THREADS", False)  # no fallback to one thread on a busy machine
     verts, faces = random_mesh(5, 400, 1500, dtype=torch.float32)
     cam = random_camera(5, 64, 64)
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
         s1, g1 = _image_and_grad(verts, faces, cam, "native")
-        torch.set_num_threads(2)
-        s2, g2 = _image_and_grad(verts, faces, cam, "native")
+        for n in (2, 3):
+            torch.set_num_threads(n)
+            s2, g2 = _image_and_grad(verts, faces, cam, "native")
+            # the image: the same sums in the same order (bands of rows); gradients: per triangle, then per
+            # vertex in face order, also the same
+            assert torch.equal(s1, s2) and torch.equal(g1, g2)
     finally:
         torch.set_num_threads(before)
-    assert (s1 - s2).abs().max() <= 1e-6 and (g1 - g2).norm() <= 1e-5 * g1.norm()  # summation order
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_strided_and_int32_faces(dtype):
+    verts, faces = random_mesh(3, 80, 300, dtype=dtype)
+    cam = random_camera(3, 40, 36)
+    s0, g0 = _image_and_grad(verts, faces, cam, "native")
+    for f in (faces.t().contiguous().t(), faces.to(torch.int32), torch.stack([faces, faces], 1)[:, 0]):
+        s1, g1 = _image_and_grad(verts, f, cam, "native")
+        assert torch.equal(s0, s1) and torch.equal(g0, g1)
+
+
+def test_non_finite_vertices_stay_finite():
+    verts, faces = random_mesh(4, 60, 200)
+    cam = random_camera(4, 40, 36)
+    verts[3] = float("nan")
+    verts[7, 0] = float("inf")
+    for backend_threads in (1, 2):
+        before = torch.get_num_threads()
+        try:
+            torch.set_num_threads(backend_threads)
+            s = soft_silhouette(verts, faces, cam, backend="native")
+        finally:
+            torch.set_num_threads(before)
+        assert torch.isfinite(s).all() and ((s >= 0) & (s <= 1)).all()
 
 
 def test_falls_back_to_eager_without_the_kernel(monkeypatch):

@@ -28,13 +28,18 @@ The backward pass is written by hand (a ``torch.autograd.Function``) from the en
 ``w = p - a - t e`` the vector from the nearest point of the nearest edge ``a -> a + e`` (at parameter
 ``t`` in [0, 1]), ``d(d^2) = -2 w . ((1 - t) da + t d(a + e))``.
 
-The default backend "native" does steps 2 to 5 in C (:data:`_NATIVE_C`, built with the system's C
-compiler on first use in about a second and cached; loaded with ctypes): per triangle, the pixels of
-each row within the blur radius (from its edges clipped to the row's slab, then the exact distance
-test) are evaluated in vectorized loops and summed per pixel, on torch's OpenMP threads; the backward
-pass recomputes the pairs. Its pair set is the exact one (pairs within the radius), the eager scan's
-also holds the padding of its pieces, so the two differ by about eps per pixel (the cutoff's own error).
-Without a C compiler, or for other dtypes and devices, it falls back to "eager".
+The default backend "native" does steps 1 to 5 in C but for the projection itself (:data:`_NATIVE_C`,
+built with the system's C compiler on first use in about a second and cached; loaded with ctypes): it
+gathers the triangles (dropping those behind the near plane), finds on each row the exact run of pixel
+centers within the blur radius (the ends of the row's crossing with the triangle grown by ``r``) and
+evaluates runs 8 pixels at a time in vectorized loops, on torch's OpenMP threads. The forward pass sums
+per pixel, image band by image band (one thread per band, the triangles in index order, so the image is
+the same bit for bit for any thread count), ``log(1 + u)`` as the log of a running product (exactly
+renormalized: one log per pixel rather than per pair) and returns ``-expm1(S)`` itself; the backward
+pass recomputes the pairs triangle by triangle and sums the triangles' gradients per vertex. Its pair
+set is the exact one (pairs within the radius), the eager scan's also holds the padding of its pieces,
+so the two differ by about eps per pixel (the cutoff's own error). Without a C compiler, or for other
+dtypes and devices, it falls back to "eager".
 
 The eager pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
 ``torch.compile`` (needs a C++ compiler; the first call compiles for tens of seconds, later calls and
@@ -59,6 +64,7 @@ from pathlib import Path
 import torch
 
 from ipm.errors import InputError
+from ipm.render.camera import project
 from ipm.render.scan import check_mesh_tensors, span_rows, visible_triangles
 from ipm.types import Camera, TriMesh
 
@@ -221,36 +227,59 @@ class _SoftLogSum(torch.autograd.Function):
             grad.index_add_(0, tri, (start + end).transpose(0, 1))
         return grad, None, None, None, None, None, None
 
-class _SoftLogSumNative(torch.autograd.Function):
-    """S (H, W) = per pixel, the sum over nearby triangles of log(1 - D), by the C kernel (backend
-    "native", on torch's OpenMP threads); differentiable in tri_xy (F, 3, 2). The backward pass recomputes
-    the pairs (no storage)."""
+
+class _SoftNative(torch.autograd.Function):
+    """The soft silhouette (H, W) by the C kernel (backend "native", on torch's OpenMP threads), from the
+    projected vertices xy (V, 2) (differentiable), ``ok`` (V,) bool (the vertices in front of the near
+    plane: faces with another vertex are dropped) and faces (F, 3) int64. The backward pass recomputes
+    the pairs (no storage) and sums the triangles' gradients per vertex."""
 
     @staticmethod
-    def forward(ctx, tri_xy, width, height, sigma, radius):
+    def forward(ctx, xy, ok, faces, width, height, sigma, radius):
+        x = xy.detach().contiguous()
+        dt, n_faces = x.dtype, faces.shape[0]
         far = 1e3 * (max(width, height) + 2 + radius)  # as span_rows: only guard non-finite values
-        t = tri_xy.detach().nan_to_num(far, far, -far).clamp(-far, far).contiguous()
-        n = max(1, min(torch.get_num_threads(), t.shape[0] // 256))
-        S = torch.zeros(n, height * width, dtype=t.dtype)
-        _native_fn(t)(t.data_ptr(), t.shape[0], width, height, radius, sigma, None, None, None, S.data_ptr(), n)
-        ctx.tri, ctx.args = t, (width, height, radius, sigma)
-        return (S.sum(0) if n > 1 else S[0]).view(height, width)
+        tri = torch.empty(n_faces, 6, dtype=dt)
+        rows = torch.empty(n_faces, 2, dtype=torch.int32)
+        S = torch.empty(height, width + _VEC, dtype=dt)
+        sil = torch.empty(height, width, dtype=dt)
+        if _native_fn(dt, "fwd")(x.data_ptr(), x.shape[0], faces.data_ptr(), *faces.stride(), ok.data_ptr(),
+                                 n_faces, width, height, radius, sigma, far, tri.data_ptr(), rows.data_ptr(),
+                                 S.data_ptr(), sil.data_ptr(), _BAND, *_native_threads(n_faces)):
+            raise InputError(f"faces: expected vertex indices in [0, {x.shape[0]}), got "
+                             f"[{int(faces.min())}, {int(faces.max())}]")  # as check_mesh_tensors
+        ctx.saved = (tri, rows, faces, S)
+        ctx.args = (x.shape[0], width, height, radius, sigma)
+        return sil
 
     @staticmethod
     @torch.autograd.function.once_differentiable
-    def backward(ctx, gS):
-        t, (width, height, radius, sigma) = ctx.tri, ctx.args
-        gS = gS.to(t.dtype).contiguous()
-        grad = torch.zeros_like(t)
-        n = max(1, min(torch.get_num_threads(), t.shape[0] // 256))
-        _native_fn(t)(t.data_ptr(), t.shape[0], width, height, radius, sigma, None, gS.data_ptr(),
-                      grad.data_ptr(), None, n)
-        return grad, None, None, None, None
+    def backward(ctx, gsil):
+        tri, rows, faces, S = ctx.saved
+        n_verts, width, height, radius, sigma = ctx.args
+        dt, n_faces = tri.dtype, tri.shape[0]
+        gsil = gsil.to(dt).contiguous()
+        gS = torch.empty(height, width + _VEC, dtype=dt)
+        gtri = torch.empty(n_faces, 6, dtype=dt)
+        gxy = torch.empty(n_verts, 2, dtype=dt)
+        _native_fn(dt, "bwd")(tri.data_ptr(), rows.data_ptr(), faces.data_ptr(), *faces.stride(), n_faces, n_verts,
+                              width, height, radius, sigma, S.data_ptr(), gsil.data_ptr(), gS.data_ptr(),
+                              gtri.data_ptr(), gxy.data_ptr(), *_native_threads(n_faces))
+        return gxy, None, None, None, None, None, None
 
 
-def _native_fn(t: torch.Tensor):
-    lib = _native_lib()
-    return lib.soft_par_f if t.dtype == torch.float32 else lib.soft_par_d
+_VEC = 8  # VEC of _NATIVE_C: padding columns of S and gS
+_ADAPT_THREADS = True  # False: exactly the thread count asked for (tests)
+_BAND = 8  # rows per band of the forward pass on several threads (the result does not depend on it)
+
+
+def _native_threads(n_faces: int) -> tuple[int, int]:
+    """(threads, whether the kernel may use fewer under contention (see soft_threads in _NATIVE_C))."""
+    return max(1, min(torch.get_num_threads(), n_faces // 256)), int(_ADAPT_THREADS)
+
+
+def _native_fn(dtype: torch.dtype, which: str):
+    return getattr(_native_lib(), f"soft_{which}_{'f' if dtype == torch.float32 else 'd'}")
 
 
 _LOCK = threading.Lock()
@@ -289,9 +318,7 @@ def _build_native():
     cc = os.environ.get("CC", "cc")
     if shutil.which(cc) is None:
         raise RuntimeError(f"no C compiler {cc!r}")
-    src = "".join(_NATIVE_INSTANCE.format(real=r, suffix=x, exp=e, log=lg, tiny=tn) + _NATIVE_C
-                  for r, x, e, lg, tn in (("float", "f", "expf", "logf", "1.0842021724855044e-19f"),
-                                          ("double", "d", "exp", "log", "1.4916681462400413e-154")))
+    src = "".join(_NATIVE_INSTANCE.format(**kw) + _NATIVE_C for kw in _NATIVE_TYPES)
     cpu = ""
     try:
         cpu = next((ln for ln in Path("/proc/cpuinfo").read_text().splitlines() if ln.startswith("flags")), "")
@@ -320,37 +347,128 @@ def _build_native():
                 raise RuntimeError(f"{cc} failed: {errors}")
         log.info("soft silhouette: built the native kernel %s", lib)
     dll = ctypes.CDLL(str(lib))
-    for fn in (dll.soft_par_f, dll.soft_par_d):
-        fn.argtypes = [ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_int, ctypes.c_double,
-                       ctypes.c_double, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p,
-                       ctypes.c_int]
-        fn.restype = None
+    p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
+    for x in "fd":
+        fwd, bwd = getattr(dll, f"soft_fwd_{x}"), getattr(dll, f"soft_bwd_{x}")
+        fwd.argtypes = [p, i64, p, i64, i64, p, i64, i32, i32, f64, f64, f64, p, p, p, p, i32, i32, i32]
+        bwd.argtypes = [p, p, p, i64, i64, i64, i64, i32, i32, f64, f64, p, p, p, p, p, i32, i32]
+        fwd.restype, bwd.restype = ctypes.c_int, None
     return dll
+
+
+# the two instances of _NATIVE_C: float (exp(-x) inlined, see expneg) and double
+_NATIVE_TYPES = (
+    {"real": "float", "suffix": "f", "exp": "expf", "expm1": "expm1f", "log": "logf",
+     "tiny": "1.0842021724855044e-19f", "uint": "uint32_t", "expbits": "0x7f800000u", "signbit": "0x80000000u",
+     "fastexp": 1},
+    {"real": "double", "suffix": "d", "exp": "exp", "expm1": "expm1", "log": "log",
+     "tiny": "1.4916681462400413e-154", "uint": "uint64_t", "expbits": "0x7ff0000000000000ull",
+     "signbit": "0x8000000000000000ull", "fastexp": 0},
+)
 
 
 _NATIVE_INSTANCE = """
 #undef REAL
 #undef NAME
 #undef EXP
+#undef EXPM1
 #undef LOG
 #undef TINY
+#undef UINT
+#undef EXPBITS
+#undef SIGNBIT
+#undef FASTEXP
+#undef VEC
+#undef RUNS
+#undef EDGE
 #undef PAIR_GEOMETRY
 #define REAL {real}
 #define NAME(x) x##_{suffix}
 #define EXP {exp}
+#define EXPM1 {expm1}
 #define LOG {log}
 #define TINY {tiny}
+#define UINT {uint}
+#define EXPBITS {expbits}
+#define SIGNBIT {signbit}
+#define FASTEXP {fastexp}
 """
 
-_NATIVE_C = r"""/* The soft silhouette's pair loop in C (ipm/render/soft.py, backend "native"): one triangle at a time,
-   its pairs gathered row by row into a buffer that one loop evaluates (vectorized by the compiler).
-   Compiled once per REAL (float, double); the formulas are those of the eager kernels. */
+_NATIVE_C = r"""/* The soft silhouette in C (ipm/render/soft.py, backend "native"). Pixels are evaluated a row run at a
+   time (the run: the pixels within reach, exactly), VEC consecutive pixels at once (one vector; lanes past
+   the run, or out of reach, count for nothing) read and written in place: S and gS rows have VEC padding
+   columns. The forward pass splits the image into bands of rows, each summed by one thread over its
+   triangles in index order: every pixel's sum has the same terms in the same order whatever the bands
+   and threads, so the image is the same bit for bit. The backward pass goes by triangles (each gradient
+   is its own sum), then sums them per vertex in face order. Compiled once per REAL (float, double); the
+   formulas are those of the eager kernels. */
 #include <math.h>
 #include <omp.h>
 #include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
 
-#define CAP 256
-#define VEC 16  /* divides CAP */
+#define VEC 8
+
+#ifndef SOFT_SHARED
+#define SOFT_SHARED
+#include <stdatomic.h>
+/* Threads under contention. A parallel region ends when all its threads are done, and when other
+   processes hold the cores a thread can wait a scheduler time slice (milliseconds) for one, while
+   libgomp's waiting threads spin. So when a thread of a region starts late (by 0.5 ms), the next calls
+   run on one thread (the results do not depend on the thread count): 2, 4, ... up to 64 calls while it
+   goes on, then the thread count asked for again. */
+#define MAXT 256
+static atomic_int soft_skip, soft_streak;
+
+static int soft_threads(int nt) {
+    if (nt <= 1) return 1;
+    if (atomic_load_explicit(&soft_skip, memory_order_relaxed) > 0) {
+        atomic_fetch_sub_explicit(&soft_skip, 1, memory_order_relaxed);
+        return 1;
+    }
+    return nt < MAXT ? nt : MAXT;
+}
+
+static void soft_started(int nt, const double *start, double t0) {
+    if (nt <= 1) return;
+    double late = 0;
+    for (int i = 0; i < nt; i++) late = start[i] - t0 > late ? start[i] - t0 : late;
+    int streak = atomic_load_explicit(&soft_streak, memory_order_relaxed);
+    streak = late > 5e-4 ? (streak < 6 ? streak + 1 : 6) : 0;
+    atomic_store_explicit(&soft_streak, streak, memory_order_relaxed);
+    if (streak) atomic_store_explicit(&soft_skip, 1 << streak, memory_order_relaxed);
+}
+#endif
+
+
+#if FASTEXP
+/* exp(-x) for 0 <= x <= 80 in float (Cephes' expf: x = n ln 2 + f, |f| <= ln 2 / 2, exp(f) by its
+   polynomial, 2^n by the exponent bits; about 1 ulp), inlined so that the pair loops stay vectorized */
+static inline float NAME(expneg)(float x) {
+    float a = -x, n = rintf(a * 1.44269504088896341f);
+#ifdef __FMA__
+    float f = fmaf(n, -0.693147182464599609375f, a);
+    f = fmaf(n, 1.904654299957768e-09f, f);
+#else
+    float f = a - n * 0.693359375f;
+    f = f - n * -2.12194440e-4f;
+#endif
+    float p = 1.9875691500e-4f;
+    p = p * f + 1.3981999507e-3f;
+    p = p * f + 8.3334519073e-3f;
+    p = p * f + 4.1665795894e-2f;
+    p = p * f + 1.6666665459e-1f;
+    p = p * f + 5.0000001201e-1f;
+    p = p * (f * f) + f + 1.0f;
+    int32_t e = ((int32_t)n + 127) << 23;
+    float s;
+    memcpy(&s, &e, sizeof s);
+    return p * s;
+}
+#else
+static inline REAL NAME(expneg)(REAL x) { return EXP(-x); }
+#endif
 
 typedef struct { REAL ax[3], ay[3], ox[3], c1[3], t1[3], vyi[3], vx[3], vy[3]; } NAME(Edges);
 
@@ -371,6 +489,15 @@ static void NAME(edges_of)(const REAL *p, NAME(Edges) *E) {
     }
 }
 
+/* v with NaN as far and values beyond +-far (infinities too) as +-far, like span_rows; by the bits:
+   -ffast-math lets the compiler assume finite values */
+static inline REAL NAME(guard)(REAL v, REAL far) {
+    UINT b;
+    memcpy(&b, &v, sizeof b);
+    if ((b & EXPBITS) == EXPBITS) return (b & ~(EXPBITS | SIGNBIT)) ? far : ((b & SIGNBIT) ? -far : far);
+    return v > far ? far : (v < -far ? -far : v);
+}
+
 /* rows j0 .. j1 within reach of the triangle (the count; <= 0 for none) */
 static int64_t NAME(rows_of)(const REAL *p, double r, int H, int64_t *j0, int64_t *j1) {
     double ymin = fmin(p[1], fmin(p[3], p[5])), ymax = fmax(p[1], fmax(p[3], p[5]));
@@ -381,161 +508,293 @@ static int64_t NAME(rows_of)(const REAL *p, double r, int H, int64_t *j0, int64_
     return *j1 - *j0 + 1;
 }
 
-/* the edges for cols_of: start x, start y, dx, 1 / dy (0 for flat edges), flat */
-typedef struct { double ax[3], ay[3], dx[3], inv_dy[3]; int flat[3]; } NAME(Slab);
+/* the pixels within reach of a triangle, row by row, exactly: the set within distance r of a triangle
+   is convex and bounded by its edges moved out by r and arcs about its vertices, so on a row its ends are
+   the extreme crossings of the row with the moved edges and the vertices' circles (every crossing lies in
+   the set); a margin of 1e-3 px covers rounding */
+#define RUNS 8  /* rows at a time (one vector) */
+typedef struct { double vx[3], vy[3], sx[3], sy[3], dx[3], inv[3], ok[3]; } NAME(Hull);
 
-static void NAME(slab_of)(const REAL *p, NAME(Slab) *L) {
+static void NAME(hull_of)(const REAL *p, double r, NAME(Hull) *Q) {
+    /* the normals (dy, -dx) point out of triangles of positive area (and to both sides of a segment:
+       its edges run both ways) */
+    double area2 = ((double)p[2] - p[0]) * ((double)p[5] - p[1]) - ((double)p[3] - p[1]) * ((double)p[4] - p[0]);
+    double out = area2 < 0 ? -r : r;
     for (int e = 0; e < 3; e++) {
-        double ax = p[2 * e], ay = p[2 * e + 1], dy = p[2 * ((e + 1) % 3) + 1] - ay;
-        L->ax[e] = ax; L->ay[e] = ay; L->dx[e] = p[2 * ((e + 1) % 3)] - ax;
-        L->flat[e] = dy == 0;
-        L->inv_dy[e] = dy == 0 ? 0 : 1 / dy;
+        double ax = p[2 * e], ay = p[2 * e + 1];
+        double dx = p[2 * ((e + 1) % 3)] - ax, dy = p[2 * ((e + 1) % 3) + 1] - ay;
+        double len = sqrt(dx * dx + dy * dy);
+        double nx = len > 0 ? out * dy / len : 0, ny = len > 0 ? -out * dx / len : 0;
+        Q->vx[e] = ax; Q->vy[e] = ay;
+        Q->sx[e] = ax + nx;
+        Q->sy[e] = ay + ny;
+        Q->dx[e] = dx;
+        Q->ok[e] = dy != 0 ? 1 : 0;
+        Q->inv[e] = dy != 0 ? 1 / dy : 0;
     }
 }
 
-/* columns i0 .. i1 of the row at yc within reach: the x-extent of the triangle inside the slab
-   |y - yc| <= r (attained on its edges clipped to the slab), widened by r; 0 if none */
-static int NAME(cols_of)(const NAME(Slab) *L, double yc, double r, int W, int64_t *i0, int64_t *i1) {
-    double lo = INFINITY, hi = -INFINITY, y0 = yc - r, y1 = yc + r;
-    for (int e = 0; e < 3; e++) {
-        double ay = L->ay[e], s0, s1;
-        if (L->flat[e]) {
-            if (ay < y0 || ay > y1) continue;
-            s0 = 0; s1 = 1;
-        } else {
-            s0 = (y0 - ay) * L->inv_dy[e]; s1 = (y1 - ay) * L->inv_dy[e];
-            if (s0 > s1) { double s = s0; s0 = s1; s1 = s; }
-            s0 = s0 < 0 ? 0 : s0;
-            s1 = s1 > 1 ? 1 : s1;
-            if (s0 > s1) continue;
-        }
-        double xa = L->ax[e] + s0 * L->dx[e], xb = L->ax[e] + s1 * L->dx[e];
-        if (xa > xb) { double x = xa; xa = xb; xb = x; }
-        lo = xa < lo ? xa : lo;
-        hi = xb > hi ? xb : hi;
-    }
-    if (!(lo <= hi)) return 0;
-    double a = ceil(lo - r - 0.5), b = floor(hi + r - 0.5);
-    if (a > W - 1 || b < 0) return 0;
-    *i0 = a < 0 ? 0 : (int64_t)a;
-    *i1 = b > W - 1 ? W - 1 : (int64_t)b;
-    return 1;
-}
-
-/* per pair k: the nearest edge (squared distance best, index near, its t and w = (bwx, bwy)), whether
-   the pixel is inside, whether it is within reach (keep), x = best / sigma and u = exp(-x) */
-#define PAIR_GEOMETRY                                                                              \
-    REAL best = 0, bt = 0, bwx = 0, bwy = 0, cmin = 0;                                             \
-    int near = 0;                                                                                  \
-    for (int e = 0; e < 3; e++) {                                                                  \
-        REAL x0 = px[k] - E->ax[e], dy = py[k] - E->ay[e];                                         \
-        REAL c = E->ox[e] * dy + E->c1[e] * x0;                                                    \
-        REAL t = x0 * E->t1[e] + dy * E->vyi[e];                                                   \
-        t = t < 0 ? 0 : (t > 1 ? 1 : t);                                                           \
-        REAL wx = x0 - t * E->vx[e], wy = dy - t * E->vy[e];                                       \
-        REAL d2 = wx * wx + wy * wy;                                                               \
-        int take = e == 0 || d2 < best;                                                            \
-        best = take ? d2 : best; bt = take ? t : bt; bwx = take ? wx : bwx; bwy = take ? wy : bwy; \
-        near = take ? e : near;                                                                    \
-        cmin = (e == 0 || c < cmin) ? c : cmin;                                                    \
-    }                                                                                              \
-    REAL inside = cmin >= 0 ? 1 : 0;                                                               \
-    REAL keep = (cmin >= 0 || best <= r2) && k < n ? 1 : 0;                                                 \
-    REAL x = best * inv_sigma;                                                                     \
-    REAL u = EXP(-(x < 80 ? x : 80));
-
-/* the buffers hold n pairs; loops run to m, n rounded up to whole vectors (no scalar remainder: it
-   would call the scalar exp and log), the pairs past n count for nothing */
-static void NAME(fwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
-                            int n, REAL r2, REAL inv_sigma, REAL *S) {
-    REAL term[CAP];
-    int m = (n + VEC - 1) / VEC * VEC;
+/* columns i0[k] .. i1[k] (i0 > i1 for none) of row j + k within reach, k < RUNS */
+static void NAME(runs_of)(const NAME(Hull) *Q, int64_t j, double r, int W, int64_t *i0, int64_t *i1) {
+    double r2 = r * r, big = 1e300;
 #pragma omp simd
-    for (int k = 0; k < m; k++) {
-        PAIR_GEOMETRY
-        term[k] = -keep * (LOG(1 + u) + inside * x);
+    for (int k = 0; k < RUNS; k++) {
+        double yc = (double)(j + k) + 0.5, lo = big, hi = -big;
+        for (int v = 0; v < 3; v++) {
+            double dy = Q->vy[v] - yc, h2 = r2 - dy * dy;
+            double h = sqrt(h2 > 0 ? h2 : 0);
+            double a = Q->vx[v] - h, b = Q->vx[v] + h;
+            lo = h2 >= 0 && a < lo ? a : lo;
+            hi = h2 >= 0 && b > hi ? b : hi;
+        }
+        for (int s = 0; s < 3; s++) {
+            double t = (yc - Q->sy[s]) * Q->inv[s];
+            double x = Q->sx[s] + t * Q->dx[s];
+            int in = Q->ok[s] > 0 && t >= 0 && t <= 1;
+            lo = in && x < lo ? x : lo;
+            hi = in && x > hi ? x : hi;
+        }
+        double a = ceil(lo - 0.5 - 1e-3), b = floor(hi - 0.5 + 1e-3);
+        a = a < 0 ? 0 : a;
+        b = b > W - 1 ? W - 1 : b;
+        int none = !(lo <= hi) || a > b;
+        i0[k] = none ? 1 : (int64_t)a;
+        i1[k] = none ? 0 : (int64_t)b;
     }
-    for (int k = 0; k < n; k++) S[idx[k]] += term[k];
 }
 
-static void NAME(bwd_flush)(const NAME(Edges) *E, const REAL *px, const REAL *py, const int64_t *idx,
-                            int n, REAL r2, REAL inv_sigma, const REAL *gS, REAL *g) {
-    REAL gk[CAP];
-    int m = (n + VEC - 1) / VEC * VEC;
-    for (int k = 0; k < n; k++) gk[k] = gS[idx[k]];
-    for (int k = n; k < m; k++) gk[k] = 0;
-    REAL sx0 = 0, sy0 = 0, tx0 = 0, ty0 = 0, sx1 = 0, sy1 = 0, tx1 = 0, ty1 = 0;
-    REAL sx2 = 0, sy2 = 0, tx2 = 0, ty2 = 0;
-#pragma omp simd reduction(+ : sx0, sy0, tx0, ty0, sx1, sy1, tx1, ty1, sx2, sy2, tx2, ty2)
-    for (int k = 0; k < m; k++) {
+/* per pair (pixel center (fx + k, fy)): per edge e its squared distance d_e, t_e and w_e = (wx_e, wy_e);
+   the nearest edge (squared distance best; on ties the first), whether the pixel is inside, whether the
+   pair counts (keep: lane k < n, and inside or within reach), x = best / sigma and u = exp(-x). Written
+   out per edge: the compiler vectorizes the loop over k only when nothing in it branches. */
+#define EDGE(e)                                                                                    \
+    REAL x0_##e = (fx + (REAL)k) - E->ax[e], dy_##e = fy - E->ay[e];                               \
+    REAL c_##e = E->ox[e] * dy_##e + E->c1[e] * x0_##e;                                            \
+    REAL t_##e = x0_##e * E->t1[e] + dy_##e * E->vyi[e];                                           \
+    t_##e = t_##e < 0 ? 0 : (t_##e > 1 ? 1 : t_##e);                                               \
+    REAL wx_##e = x0_##e - t_##e * E->vx[e], wy_##e = dy_##e - t_##e * E->vy[e];                   \
+    REAL d_##e = wx_##e * wx_##e + wy_##e * wy_##e;
+#define PAIR_GEOMETRY                                                                              \
+    EDGE(0) EDGE(1) EDGE(2)                                                                        \
+    REAL best01 = d_1 < d_0 ? d_1 : d_0, best = d_2 < best01 ? d_2 : best01;                       \
+    REAL cmin = c_1 < c_0 ? c_1 : c_0;                                                             \
+    cmin = c_2 < cmin ? c_2 : cmin;                                                                \
+    REAL inside = cmin >= 0 ? 1 : 0;                                                               \
+    REAL keep = (cmin >= 0 || best <= r2) && k < n ? 1 : 0;                                        \
+    REAL x = best * inv_sigma;                                                                     \
+    REAL u = NAME(expneg)(x < 80 ? x : 80);
+
+/* one vector of a row run, for the pairs k < n that count: out[k] += log(1 - D), in two parts: the
+   product of the factors 1 / (1 + u) (the reciprocal kept in prod[k], between 1 and 2: halved with
+   out[k] -= ln 2 when it reaches 2, exactly) and the rest (-x inside); log(prod) is taken once per pixel
+   at the end */
+static inline void NAME(fwd_vec)(const NAME(Edges) *E, REAL fx, REAL fy, int n, REAL r2, REAL inv_sigma,
+                                 REAL *out, REAL *prod) {
+#pragma omp simd simdlen(VEC)
+    for (int k = 0; k < VEC; k++) {
         PAIR_GEOMETRY
-        REAL gg = keep * gk[k] * ((u / (1 + u) - inside) * (-2 * inv_sigma));  /* -2 dL/d(d^2) */
-        REAL ux = gg * bwx, uy = gg * bwy;
-        REAL m0 = near == 0 ? 1 : 0, m1 = near == 1 ? 1 : 0, m2 = near == 2 ? 1 : 0;
-        sx0 += m0 * ux; sy0 += m0 * uy; tx0 += m0 * ux * bt; ty0 += m0 * uy * bt;
-        sx1 += m1 * ux; sy1 += m1 * uy; tx1 += m1 * ux * bt; ty1 += m1 * uy * bt;
-        sx2 += m2 * ux; sy2 += m2 * uy; tx2 += m2 * ux * bt; ty2 += m2 * uy * bt;
+        REAL q = prod[k] * (1 + keep * u);
+        REAL half = q >= 2 ? 1 : 0;
+        prod[k] = q * (1 - (REAL)0.5 * half);
+        out[k] -= keep * inside * x + half * (REAL)0.69314718055994530942;
     }
-    /* edge e runs from vertex e to vertex e + 1: d(d^2) = -2 w . ((1 - t) da + t db) */
-    g[0] += sx0 - tx0 + tx2; g[1] += sy0 - ty0 + ty2;
-    g[2] += sx1 - tx1 + tx0; g[3] += sy1 - ty1 + ty0;
-    g[4] += sx2 - tx2 + tx1; g[5] += sy2 - ty2 + ty1;
 }
 
-/* Triangles lo .. hi - 1 of tri (F, 3, 2). Forward (gS == 0): S (H * W) += per pixel, the sum of
-   log(1 - D). Backward: grad rows lo .. hi - 1 = d(sum_p gS[p] S[p]) / d tri. */
-void NAME(soft)(const REAL *tri, int64_t lo, int64_t hi, int W, int H, double r, double sigma, REAL *S,
-                const REAL *gS, REAL *grad) {
-    REAL px[CAP] = {0}, py[CAP] = {0};
-    int64_t idx[CAP];
-    REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma);
-    for (int64_t f = lo; f < hi; f++) {
-        const REAL *p = tri + 6 * f;
-        REAL *g = gS ? grad + 6 * f : 0;
-        if (g) for (int q = 0; q < 6; q++) g[q] = 0;
-        int64_t j0, j1, i0, i1;
-        if (NAME(rows_of)(p, r, H, &j0, &j1) <= 0) continue;
+/* one vector of a row run, backward: acc[q][k] += the pair's share of the gradient of vertex q / 2,
+   coordinate q % 2, given gS (dL/dS) along the run */
+static inline void NAME(bwd_vec)(const NAME(Edges) *E, REAL fx, REAL fy, int n, REAL r2, REAL inv_sigma,
+                                 const REAL *gS, REAL acc[6][VEC]) {
+#pragma omp simd simdlen(VEC)
+    for (int k = 0; k < VEC; k++) {
+        PAIR_GEOMETRY
+        REAL gg = (u / (1 + u) - inside) * (-2 * inv_sigma);  /* -2 d log(1 - D) / d(d^2) */
+        REAL gs = gS[k];
+        gg = keep * gs * gg;
+        /* the nearest edge's masks, t and w */
+        int s1 = d_1 < d_0, s2 = d_2 < best01;
+        REAL m2 = s2 ? 1 : 0, m1 = s1 ? 1 - m2 : 0, m0 = 1 - m1 - m2;
+        REAL bt = s2 ? t_2 : (s1 ? t_1 : t_0);
+        REAL ux = gg * (s2 ? wx_2 : (s1 ? wx_1 : wx_0)), uy = gg * (s2 ? wy_2 : (s1 ? wy_1 : wy_0));
+        /* edge e runs from vertex e to vertex e + 1: d(d^2) = -2 w . ((1 - t) da + t db) */
+        REAL a = 1 - bt;
+        REAL w0 = m0 * a + m2 * bt, w1 = m1 * a + m0 * bt, w2 = m2 * a + m1 * bt;
+        acc[0][k] += w0 * ux; acc[1][k] += w0 * uy;
+        acc[2][k] += w1 * ux; acc[3][k] += w1 * uy;
+        acc[4][k] += w2 * ux; acc[5][k] += w2 * uy;
+    }
+}
+
+/* the rows ja .. jb of triangle p: S (rows of stride W + VEC) += log(1 - D) per pixel (with P) */
+static void NAME(fwd_rows)(const REAL *p, int64_t ja, int64_t jb, int W, double r, REAL r2, REAL inv_sigma,
+                           REAL *S, REAL *P) {
+    NAME(Edges) E;
+    NAME(edges_of)(p, &E);
+    NAME(Hull) Q;
+    NAME(hull_of)(p, r, &Q);
+    int64_t i0[RUNS], i1[RUNS], stride = W + VEC;
+    for (int64_t jj = ja; jj <= jb; jj += RUNS) {
+        NAME(runs_of)(&Q, jj, r, W, i0, i1);
+        for (int64_t j = jj; j <= jb && j < jj + RUNS; j++) {
+            int64_t a = i0[j - jj], b = i1[j - jj];
+            REAL *row = S + j * stride, *prow = P + j * stride;
+            for (int64_t i = a; i <= b; i += VEC)
+                NAME(fwd_vec)(&E, (REAL)i + (REAL)0.5, (REAL)j + (REAL)0.5, (int)(b - i + 1), r2, inv_sigma,
+                              row + i, prow + i);
+        }
+    }
+}
+
+/* band rows ja .. jb: S = the sum of log(1 - D) over the triangles list[0 .. n - 1], sil = -expm1(S) */
+static void NAME(fwd_band)(const REAL *tri, const int32_t *rows, const int64_t *list, int64_t n, int64_t ja,
+                           int64_t jb, int W, double r, REAL r2, REAL inv_sigma, REAL *S, REAL *P, REAL *sil) {
+    int64_t stride = W + VEC;
+    memset(S + ja * stride, 0, (jb - ja + 1) * stride * sizeof *S);
+    for (int64_t i = ja * stride; i < (jb + 1) * stride; i++) P[i] = 1;
+    for (int64_t q = 0; q < n; q++) {
+        int64_t f = list[q];
+        int64_t j0 = rows[2 * f] > ja ? rows[2 * f] : ja, j1 = rows[2 * f + 1] < jb ? rows[2 * f + 1] : jb;
+        NAME(fwd_rows)(tri + 6 * f, j0, j1, W, r, r2, inv_sigma, S, P);
+    }
+    for (int64_t j = ja; j <= jb; j++) {
+        REAL *s = S + j * stride, *p = P + j * stride, *o = sil + j * W;
+#pragma omp simd
+        for (int64_t i = 0; i < W; i++) {
+            REAL v = s[i] - LOG(p[i]);
+            s[i] = v;
+            o[i] = -EXPM1(v);
+        }
+    }
+}
+
+/* Forward. xy (V, 2) projected vertices, faces (F, 3) with strides fs0, fs1 (-1 returned if an index is
+   out of range: those faces are dropped), ok (V,) 1 for the vertices in front of the near plane (faces
+   with another vertex are dropped). Writes tri (F, 6) the triangles as the kernel sees them (guarded
+   against non-finite values), rows (F, 2) the rows they reach (j0 > j1 for none), S (H, W + VEC) per
+   pixel the sum of log(1 - D), and sil (H, W) = -expm1(S); bands of `band` rows on nt threads (one
+   parallel region, no barrier inside: the triangles are sorted into bands first). */
+int NAME(soft_fwd)(const REAL *xy, int64_t V, const int64_t *faces, int64_t fs0, int64_t fs1, const uint8_t *ok,
+                   int64_t F, int W, int H, double r, double sigma, double far, REAL *tri, int32_t *rows,
+                   REAL *S, REAL *sil, int band, int nt, int adapt) {
+    REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma), farr = (REAL)far;
+    nt = adapt ? soft_threads(nt) : (nt < MAXT ? nt : MAXT);
+    band = nt > 1 && band > 0 ? band : (H > 0 ? H : 1);  /* one thread: one band (no triangle set up twice) */
+    int64_t stride = W + VEC, nb = (H + band - 1) / band;
+    int64_t *start = calloc(nb + 1, sizeof *start), *order = malloc(nb * sizeof *order);
+    REAL *P = malloc(H * stride * sizeof *P);
+    int bad = 0;
+    for (int64_t f = 0; f < F; f++) {
+        REAL *p = tri + 6 * f;
+        int32_t *rg = rows + 2 * f;
+        int in = 1;
+        for (int v = 0; v < 3; v++) {
+            int64_t q = faces[f * fs0 + v * fs1];
+            if (q < 0 || q >= V) { bad = 1; in = 0; p[2 * v] = p[2 * v + 1] = 0; continue; }
+            in = in && ok[q];
+            p[2 * v] = NAME(guard)(xy[2 * q], farr);
+            p[2 * v + 1] = NAME(guard)(xy[2 * q + 1], farr);
+        }
+        int64_t j0, j1;
+        if (in && NAME(rows_of)(p, r, H, &j0, &j1) > 0) {
+            rg[0] = (int32_t)j0; rg[1] = (int32_t)j1;
+            for (int64_t b = j0 / band; b <= j1 / band; b++) start[b + 1]++;
+        } else {
+            rg[0] = 1; rg[1] = 0;
+        }
+    }
+    /* per band, the triangles reaching it, in index order; the bands with the most first */
+    for (int64_t b = 0; b < nb; b++) {
+        int64_t m = start[b + 1], k = b;
+        for (; k > 0 && start[order[k - 1] + 1] < m; k--) order[k] = order[k - 1];
+        order[k] = b;
+    }
+    for (int64_t b = 0; b < nb; b++) start[b + 1] += start[b];
+    int64_t *list = malloc((start[nb] + 1) * sizeof *list), *fill = malloc((nb + 1) * sizeof *fill);
+    memcpy(fill, start, (nb + 1) * sizeof *fill);
+    for (int64_t f = 0; f < F; f++)
+        if (rows[2 * f] <= rows[2 * f + 1])
+            for (int64_t b = rows[2 * f] / band; b <= rows[2 * f + 1] / band; b++) list[fill[b]++] = f;
+    double t0 = omp_get_wtime(), started[MAXT];
+#pragma omp parallel num_threads(nt) if (nt > 1)
+    {
+        started[omp_get_thread_num()] = omp_get_wtime();
+#pragma omp for schedule(dynamic, 1) nowait
+        for (int64_t o = 0; o < nb; o++) {
+            int64_t b = order[o], ja = b * band, jb = ja + band - 1 < H - 1 ? ja + band - 1 : H - 1;
+            NAME(fwd_band)(tri, rows, list + start[b], start[b + 1] - start[b], ja, jb, W, r, r2, inv_sigma, S,
+                           P, sil);
+        }
+    }
+    if (adapt) soft_started(nt, started, t0);
+    free(fill);
+    free(list);
+    free(order);
+    free(start);
+    free(P);
+    return bad ? -1 : 0;
+}
+
+/* triangle p, reaching rows ja .. jb: g (6) = d(sum_p gS[p] S[p]) / dp */
+static void NAME(bwd_tri)(const REAL *p, int64_t ja, int64_t jb, int W, double r, REAL r2, REAL inv_sigma,
+                          const REAL *gS, REAL *g) {
+    REAL acc[6][VEC];
+    memset(acc, 0, sizeof acc);
+    if (ja <= jb) {
         NAME(Edges) E;
         NAME(edges_of)(p, &E);
-        NAME(Slab) L;
-        NAME(slab_of)(p, &L);
-        int n = 0;
-        for (int64_t j = j0; j <= j1; j++) {
-            if (!NAME(cols_of)(&L, (double)j + 0.5, r, W, &i0, &i1)) continue;
-            for (int64_t i = i0; i <= i1; i++) {
-                px[n] = (REAL)i + (REAL)0.5; py[n] = (REAL)j + (REAL)0.5; idx[n] = j * W + i;
-                if (++n == CAP) {
-                    if (g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
-                    else NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
-                    n = 0;
-                }
+        NAME(Hull) Q;
+        NAME(hull_of)(p, r, &Q);
+        int64_t i0[RUNS], i1[RUNS], stride = W + VEC;
+        for (int64_t jj = ja; jj <= jb; jj += RUNS) {
+            NAME(runs_of)(&Q, jj, r, W, i0, i1);
+            for (int64_t j = jj; j <= jb && j < jj + RUNS; j++) {
+                int64_t a = i0[j - jj], b = i1[j - jj];
+                const REAL *row = gS + j * stride;
+                for (int64_t i = a; i <= b; i += VEC)
+                    NAME(bwd_vec)(&E, (REAL)i + (REAL)0.5, (REAL)j + (REAL)0.5, (int)(b - i + 1), r2, inv_sigma,
+                                  row + i, acc);
             }
         }
-        if (n && g) NAME(bwd_flush)(&E, px, py, idx, n, r2, inv_sigma, gS, g);
-        else if (n) NAME(fwd_flush)(&E, px, py, idx, n, r2, inv_sigma, S);
+    }
+    for (int q = 0; q < 6; q++) {
+        REAL s = 0;
+        for (int k = 0; k < VEC; k++) s += acc[q][k];
+        g[q] = s;
     }
 }
 
-/* All F triangles on nt threads of the OpenMP pool (torch's own: the process loads one libgomp), in
-   blocks of 64: the forward pass statically (each thread sums into its own buffer, then the buffers
-   are added in thread order: the same result every run), the backward pass dynamically (each triangle's
-   gradient is its own sum: any schedule gives the same result). */
-void NAME(soft_par)(const REAL *tri, int64_t F, int W, int H, double r, double sigma, REAL *S,
-                    const REAL *gS, REAL *grad, REAL *buffers, int nt) {
-    int64_t nb = (F + 63) / 64;
-    if (gS) {
-#pragma omp parallel for schedule(dynamic, 1) num_threads(nt)
-        for (int64_t b = 0; b < nb; b++)
-            NAME(soft)(tri, 64 * b, 64 * b + 64 < F ? 64 * b + 64 : F, W, H, r, sigma, 0, gS, grad);
-        return;
+/* Backward. tri, rows, S (H, W + VEC): from soft_fwd; gsil (H, W) = dL/dsil with sil = -expm1(S); gS
+   (H, W + VEC) and gtri (F, 6): scratch; faces as for soft_fwd. Writes gxy (V, 2) = dL/dxy (the sums of
+   the triangles' gradients per vertex, in face order). One parallel region (blocks of triangles), no
+   barrier inside. */
+void NAME(soft_bwd)(const REAL *tri, const int32_t *rows, const int64_t *faces, int64_t fs0, int64_t fs1,
+                    int64_t F, int64_t V, int W, int H, double r, double sigma, const REAL *S, const REAL *gsil,
+                    REAL *gS, REAL *gtri, REAL *gxy, int nt, int adapt) {
+    REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma);
+    int64_t stride = W + VEC;
+    for (int64_t j = 0; j < H; j++) {
+        const REAL *s = S + j * stride, *g = gsil + j * W;
+        REAL *o = gS + j * stride;
+#pragma omp simd
+        for (int64_t i = 0; i < W; i++) o[i] = -g[i] * EXP(s[i]);  /* d(-expm1(S)) = -exp(S) dS */
+        for (int64_t i = W; i < stride; i++) o[i] = 0;
     }
-#pragma omp parallel num_threads(nt)
+    nt = adapt ? soft_threads(nt) : (nt < MAXT ? nt : MAXT);
+    double t0 = omp_get_wtime(), started[MAXT];
+#pragma omp parallel num_threads(nt) if (nt > 1)
     {
-        REAL *mine = buffers + (int64_t)omp_get_thread_num() * W * H;
-#pragma omp for schedule(static, 4)
-        for (int64_t b = 0; b < nb; b++)
-            NAME(soft)(tri, 64 * b, 64 * b + 64 < F ? 64 * b + 64 : F, W, H, r, sigma, mine, 0, 0);
+        started[omp_get_thread_num()] = omp_get_wtime();
+#pragma omp for schedule(dynamic, 16) nowait
+        for (int64_t f = 0; f < F; f++)
+            NAME(bwd_tri)(tri + 6 * f, rows[2 * f], rows[2 * f + 1], W, r, r2, inv_sigma, gS, gtri + 6 * f);
     }
+    if (adapt) soft_started(nt, started, t0);
+    memset(gxy, 0, 2 * V * sizeof *gxy);
+    for (int64_t f = 0; f < F; f++)
+        for (int v = 0; v < 3; v++) {
+            int64_t q = faces[f * fs0 + v * fs1];
+            gxy[2 * q] += gtri[6 * f + 2 * v];
+            gxy[2 * q + 1] += gtri[6 * f + 2 * v + 1];
+        }
 }
 """
 
@@ -560,22 +819,28 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
     (torch.compile), default ``$IPM_SOFT_BACKEND`` or "native".
     Returns a tensor with the dtype and device of ``verts``.
     """
-    check_mesh_tensors(verts, faces)
     backend = backend or os.environ.get("IPM_SOFT_BACKEND") or "native"
     if backend not in BACKENDS:
         raise InputError(f"backend: expected one of {', '.join(BACKENDS)}, got {backend!r}")
+    native = (backend == "native" and torch.is_tensor(verts) and verts.device.type == "cpu"
+              and verts.dtype in (torch.float32, torch.float64) and _native_lib() is not None)
+    if native and torch.is_tensor(faces) and faces.shape[-1:] == (3,) and faces.ndim == 2:
+        check_mesh_tensors(verts, faces[:0])  # the kernel checks the vertex indices (it reads every face anyway)
+    else:
+        check_mesh_tensors(verts, faces)
     if not sigma > 0:
         raise InputError(f"sigma: expected a positive blur (squared pixels), got {sigma}")
     if not 0 < eps < 0.5:
         raise InputError(f"eps: expected a cutoff in (0, 0.5), got {eps}")
     W, H = int(camera.width), int(camera.height)
-    tri, _, _ = visible_triangles(verts, faces, camera, near)
+    if native:
+        # the kernel gathers the triangles and drops those behind the near plane (as visible_triangles)
+        xy, depth = project(verts, camera.to(dtype=verts.dtype, device=verts.device))
+        ok = (depth.detach() >= near).contiguous()
+        return _SoftNative.apply(xy, ok, faces.to(torch.int64), W, H, float(sigma), blur_radius(sigma, eps))
     if backend == "native":
-        if (verts.device.type == "cpu" and verts.dtype in (torch.float32, torch.float64)
-                and _native_lib() is not None):
-            S = _SoftLogSumNative.apply(tri, W, H, float(sigma), blur_radius(sigma, eps))
-            return -torch.expm1(S)
         backend = "eager"
+    tri, _, _ = visible_triangles(verts, faces, camera, near)
     groups, kept = span_rows(tri, blur_radius(sigma, eps), W, H, backend)
     if not groups:
         return verts.sum() * 0 + torch.zeros(H, W, dtype=verts.dtype, device=verts.device)
