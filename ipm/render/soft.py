@@ -402,14 +402,15 @@ _NATIVE_INSTANCE = """
 #define FASTEXP {fastexp}
 """
 
-_NATIVE_C = r"""/* The soft silhouette in C (ipm/render/soft.py, backend "native"). Pixels are evaluated a row run at a
-   time (the run: the pixels within reach, exactly), VEC consecutive pixels at once (one vector; lanes past
-   the run, or out of reach, count for nothing) read and written in place: S and gS rows have VEC padding
-   columns. The forward pass splits the image into bands of rows, each summed by one thread over its
-   triangles in index order: every pixel's sum has the same terms in the same order whatever the bands
-   and threads, so the image is the same bit for bit. The backward pass goes by triangles (each gradient
-   is its own sum), then sums them per vertex in face order. Compiled once per REAL (float, double); the
-   formulas are those of the eager kernels. */
+_NATIVE_C = r"""/* The soft silhouette in C (ipm/render/soft.py, backend "native"), from the vertices and the camera
+   (the projection is done here too). Pixels are evaluated a row run at a time (the run: the pixels
+   within reach, exactly), VEC consecutive pixels at once (one vector; lanes past the run, or out of
+   reach, count for nothing) read and written in place: S and gS rows have VEC padding columns. The
+   forward pass splits the image into bands of rows, each summed by one thread over its triangles in
+   index order: every pixel's sum has the same terms in the same order whatever the bands and
+   threads, so the image is the same bit for bit. The backward pass goes by triangles (each gradient
+   is its own sum), then sums them per vertex in face order. Compiled once per REAL (float, double);
+   the formulas are those of the eager kernels. */
 #include <math.h>
 #include <omp.h>
 #include <stdint.h>
