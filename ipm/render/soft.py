@@ -248,11 +248,14 @@ class _SoftNative(torch.autograd.Function):
         rows = torch.empty(n_faces, 2, dtype=torch.int32)
         S = torch.empty(height, width + _VEC, dtype=dt)
         sil = torch.empty(height, width, dtype=dt)
-        if _native_fn(dt, "fwd")(v.data_ptr(), *v.stride(), n_verts, cam.data_ptr(), near, faces.data_ptr(),
-                                 *faces.stride(), n_faces, width, height, radius, sigma, far, tri.data_ptr(),
-                                 rows.data_ptr(), S.data_ptr(), sil.data_ptr(), *_native_threads(n_faces)):
+        rc = _native_fn(dt, "fwd")(v.data_ptr(), *v.stride(), n_verts, cam.data_ptr(), near, faces.data_ptr(),
+                                   *faces.stride(), n_faces, width, height, radius, sigma, far, tri.data_ptr(),
+                                   rows.data_ptr(), S.data_ptr(), sil.data_ptr(), *_native_threads(n_faces))
+        if rc == -1:
             raise InputError(f"faces: expected vertex indices in [0, {n_verts}), got "
                              f"[{int(faces.min())}, {int(faces.max())}]")  # as check_mesh_tensors
+        if rc:
+            raise MemoryError("soft silhouette: the native kernel ran out of memory")
         ctx.saved = (v, cam, faces, tri, rows, S)
         ctx.args = (width, height, radius, sigma)
         return sil
@@ -703,8 +706,8 @@ static inline int NAME(is_nan)(REAL v) {  /* by the bits: -ffast-math lets the c
 }
 
 /* Forward. verts (V, 3) with strides vs0, vs1 and the camera C (see NAME(Cam)): vertices nearer than
-   `near` drop their faces; faces (F, 3) with strides fs0, fs1 (-1 returned if an index is out of range:
-   those faces are dropped). Writes tri (F, 6) the projected triangles as the kernel sees them (guarded
+   `near` drop their faces; faces (F, 3) with strides fs0, fs1 (returns -1 if an index is out of range,
+   -2 if out of memory, else 0). Writes tri (F, 6) the projected triangles as the kernel sees them (guarded
    against non-finite values), rows (F, 2) the rows they reach (j0 > j1 for none), S (H, W + VEC) per
    pixel the sum of log(1 - D), and sil (H, W) = -expm1(S); bands of rows on nt threads (one parallel
    region, no barrier inside: the triangles are sorted into bands first). */
@@ -718,9 +721,11 @@ int NAME(soft_fwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const
     band = band < 8 ? 8 : (band > H ? H : band);
     band = band > 0 ? band : 1;
     int64_t stride = W + VEC, nb = (H + band - 1) / band;
-    int64_t *start = calloc(nb + 1, sizeof *start), *order = malloc(nb * sizeof *order);
+    int64_t *start = calloc(nb + 1, sizeof *start), *order = malloc(nb * sizeof *order), *list = 0, *fill = 0;
     REAL *P = malloc(H * stride * sizeof *P), *xy = malloc((2 * V + 1) * sizeof *xy);
     uint8_t *ok = malloc(V + 1);
+    int bad = 0;
+    if (!start || !order || !P || !xy || !ok) { bad = -2; goto done; }
     const NAME(Cam) *C = (const NAME(Cam) *)cam;
     for (int64_t q = 0; q < V; q++) {
         REAL d[3], pc[3], inv;
@@ -730,14 +735,13 @@ int NAME(soft_fwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const
         xy[2 * q + 1] = C->cy - C->fpx * pc[1] * inv;
         ok[q] = !NAME(is_nan)(pc[2]) && -pc[2] >= (REAL)near;
     }
-    int bad = 0;
     for (int64_t f = 0; f < F; f++) {
         REAL *p = tri + 6 * f;
         int32_t *rg = rows + 2 * f;
         int in = 1;
         for (int v = 0; v < 3; v++) {
             int64_t q = faces[f * fs0 + v * fs1];
-            if (q < 0 || q >= V) { bad = 1; in = 0; p[2 * v] = p[2 * v + 1] = 0; continue; }
+            if (q < 0 || q >= V) { bad = -1; in = 0; p[2 * v] = p[2 * v + 1] = 0; continue; }
             in = in && ok[q];
             p[2 * v] = NAME(guard)(xy[2 * q], farr);
             p[2 * v + 1] = NAME(guard)(xy[2 * q + 1], farr);
@@ -757,7 +761,9 @@ int NAME(soft_fwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const
         order[k] = b;
     }
     for (int64_t b = 0; b < nb; b++) start[b + 1] += start[b];
-    int64_t *list = malloc((start[nb] + 1) * sizeof *list), *fill = malloc((nb + 1) * sizeof *fill);
+    list = malloc((start[nb] + 1) * sizeof *list);
+    fill = malloc((nb + 1) * sizeof *fill);
+    if (!list || !fill) { bad = -2; goto done; }
     memcpy(fill, start, (nb + 1) * sizeof *fill);
     for (int64_t f = 0; f < F; f++)
         if (rows[2 * f] <= rows[2 * f + 1])
@@ -774,6 +780,7 @@ int NAME(soft_fwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const
         }
     }
     if (adapt) soft_started(nt, started, t0);
+done:
     free(fill);
     free(list);
     free(order);
@@ -781,7 +788,7 @@ int NAME(soft_fwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const
     free(P);
     free(xy);
     free(ok);
-    return bad ? -1 : 0;
+    return bad;
 }
 
 /* triangle p, reaching rows ja .. jb: g (6) = d(sum_p gS[p] S[p]) / dp */
