@@ -13,7 +13,11 @@ its BVH), then render, the same weighted loss, ``dr.backward`` and the gradient 
 array.
 
 Repetitions alternate between ipm (native, eager) and Mitsuba so that other jobs on a shared machine
-slow all down alike. Threads: ``torch.set_num_threads`` for ipm, ``drjit.set_thread_count`` for Dr.Jit's pool.
+slow all down alike. Each timed step is a step in its steady state, as in a fit's loop: a pause of
+``SETTLE`` seconds first (the previous step's idle threads stop spinning: Dr.Jit's workers spin for several
+milliseconds of CPU after a job, libgomp's up to about 3 ms, and would compete for the cores with the next
+measurement), then an untimed step of the same renderer (its own thread pool awake, its caches warm),
+then the timed one. Threads: ``torch.set_num_threads`` for ipm, ``drjit.set_thread_count`` for Dr.Jit's pool.
 The sanity check compares Mitsuba's primal image (64 spp, coverage > 0.5) with ipm's exact hard mask
 (IoU). Mitsuba is an optional extra (``pip install mitsuba``): where it does not import, one row says so.
 """
@@ -39,6 +43,7 @@ SIGMA = 1.0  # squared pixels
 SPP = 4
 REPEAT = 9
 WARMUP = 2
+SETTLE = 0.05  # seconds of pause before each measured pair of steps (see the module docstring)
 TARGET = 10.0  # Mitsuba / ipm at 128^2
 
 
@@ -82,6 +87,15 @@ def _mitsuba_step(scene, params, key, flat: np.ndarray, weight, seed: int) -> np
     img = mi.render(scene, params, spp=SPP, seed=seed)
     dr.backward(dr.sum(img * weight, axis=None))
     return dr.grad(params[key]).numpy()
+
+
+def _steady(step) -> float:
+    """Seconds of one call of ``step`` in its steady state: after a pause and an untimed call."""
+    time.sleep(SETTLE)
+    step()
+    t0 = time.perf_counter()
+    step()
+    return time.perf_counter() - t0
 
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
@@ -140,15 +154,9 @@ def run(out_dir: Path) -> list[dict]:
                     _mitsuba_step(scene, params, key, flat, weight_m, next(seed))
                 t_ipm, t_eager, t_mi = [], [], []
                 for _ in range(REPEAT):  # alternate, so that load hits all alike
-                    t0 = time.perf_counter()
-                    ipm_step()
-                    t_ipm.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    ipm_step("eager")
-                    t_eager.append(time.perf_counter() - t0)
-                    t0 = time.perf_counter()
-                    _mitsuba_step(scene, params, key, flat, weight_m, next(seed))
-                    t_mi.append(time.perf_counter() - t0)
+                    t_ipm.append(_steady(ipm_step))
+                    t_eager.append(_steady(lambda: ipm_step("eager")))
+                    t_mi.append(_steady(lambda: _mitsuba_step(scene, params, key, flat, weight_m, next(seed))))
                 m_ipm, m_mi = statistics.median(t_ipm), statistics.median(t_mi)
                 ratio = m_mi / m_ipm
                 row = {"measure": f"{size}^2, {faces.shape[0]} faces ({source})", "threads": threads,
@@ -170,7 +178,9 @@ def run(out_dir: Path) -> list[dict]:
              f"llvm_ad_rgb, direct_projective (sppi = 0), {SPP} spp, box filter, the mesh as an area emitter; "
              "both: forward + backward of sum(image * fixed random weights) w.r.t. the vertex positions "
              f"(Mitsuba's includes params.update(), its BVH rebuild). Median and best of {REPEAT} repetitions "
-             f"after {WARMUP} warm-ups, ipm, ipm eager and Mitsuba alternating. Threads: torch.set_num_threads and "
+             f"after {WARMUP} warm-ups, ipm, ipm eager and Mitsuba alternating, each timed step in its steady "
+             f"state: a {1e3 * SETTLE:.0f} ms pause (the previous renderer's idle threads stop spinning) and an "
+             "untimed step of the same renderer first. Threads: torch.set_num_threads and "
              "drjit.set_thread_count. mask IoU: Mitsuba's primal image at 64 spp (> 0.5) against ipm's exact "
              f"hard mask. Load average (1 min) before: {load_before}; 'load' is after each row.")
     write_results(out_dir, "mitsuba", "Soft silhouette (ipm) vs Mitsuba 3 (llvm_ad_rgb), forward + backward",

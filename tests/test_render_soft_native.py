@@ -12,6 +12,7 @@ from test_render_soft import random_camera, random_mesh
 from ipm.render import soft
 from ipm.render.camera import look_at_camera
 from ipm.render.soft import soft_silhouette
+from ipm.types import Camera
 
 pytestmark = pytest.mark.skipif(not soft.native_available(), reason="no C compiler for the native kernel")
 
@@ -63,7 +64,7 @@ def test_degenerate_triangles_match_the_reference(dtype):
 def test_thread_counts_agree(monkeypatch):
     monkeypatch.setattr(soft, "_ADAPT_THREADS", False)  # no fallback to one thread on a busy machine
     verts, faces = random_mesh(5, 400, 1500, dtype=torch.float32)
-    cam = random_camera(5, 64, 64)
+    cam = random_camera(5, 64, 100)  # 100 rows: bands of 13 rows on two threads, 9 on three
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(1)
@@ -76,6 +77,26 @@ def test_thread_counts_agree(monkeypatch):
             assert torch.equal(s1, s2) and torch.equal(g1, g2)
     finally:
         torch.set_num_threads(before)
+
+
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_camera_gradients_match_eager(dtype):
+    """The kernel projects the vertices itself: gradients for the camera's tensors as through
+    camera.project (off-center principal point, a vertex behind the near plane)."""
+    verts, faces = random_mesh(6, 60, 200, dtype=dtype)
+    verts[0] = torch.tensor([0.4, 0.3, 2.5], dtype=dtype)  # behind the camera: its faces are dropped
+    grads = []
+    for backend in ("eager", "native"):
+        eye = torch.tensor([0.3, 0.5, 2.2], dtype=dtype, requires_grad=True)
+        target = torch.tensor([0.05, 0.0, -0.05], dtype=dtype, requires_grad=True)
+        up = torch.tensor([0.0, 1.0, 0.1], dtype=dtype, requires_grad=True)
+        fov = torch.tensor(50.0, dtype=dtype, requires_grad=True)
+        v = verts.clone().requires_grad_(True)
+        s = soft_silhouette(v, faces, Camera(eye, target, up, fov, 40, 32, cx=18.5, cy=17.0), backend=backend)
+        (s * torch.rand(s.shape, generator=torch.Generator().manual_seed(2), dtype=dtype)).sum().backward()
+        grads.append([eye.grad, target.grad, up.grad, fov.grad, v.grad])
+    for g0, g1 in zip(*grads):
+        assert (g0 - g1).norm() <= 2e-4 * g0.norm() + 1e-9
 
 
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])

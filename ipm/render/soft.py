@@ -28,18 +28,21 @@ The backward pass is written by hand (a ``torch.autograd.Function``) from the en
 ``w = p - a - t e`` the vector from the nearest point of the nearest edge ``a -> a + e`` (at parameter
 ``t`` in [0, 1]), ``d(d^2) = -2 w . ((1 - t) da + t d(a + e))``.
 
-The default backend "native" does steps 1 to 5 in C but for the projection itself (:data:`_NATIVE_C`,
-built with the system's C compiler on first use in about a second and cached; loaded with ctypes): it
-gathers the triangles (dropping those behind the near plane), finds on each row the exact run of pixel
-centers within the blur radius (the ends of the row's crossing with the triangle grown by ``r``) and
-evaluates runs 8 pixels at a time in vectorized loops, on torch's OpenMP threads. The forward pass sums
-per pixel, image band by image band (one thread per band, the triangles in index order, so the image is
-the same bit for bit for any thread count), ``log(1 + u)`` as the log of a running product (exactly
-renormalized: one log per pixel rather than per pair) and returns ``-expm1(S)`` itself; the backward
-pass recomputes the pairs triangle by triangle and sums the triangles' gradients per vertex. Its pair
-set is the exact one (pairs within the radius), the eager scan's also holds the padding of its pieces,
-so the two differ by about eps per pixel (the cutoff's own error). Without a C compiler, or for other
-dtypes and devices, it falls back to "eager".
+The default backend "native" does steps 1 to 5 in C (:data:`_NATIVE_C`, built with the system's C
+compiler on first use in about a second and cached; loaded with ctypes): it projects the vertices (as
+:func:`ipm.render.camera.project`, whose matrix product torch would hand to a threaded BLAS), gathers
+the triangles (dropping those behind the near plane), finds on each row the exact run of pixel centers
+within the blur radius (the ends of the row's crossing with the triangle grown by ``r``) and evaluates
+runs 8 pixels at a time in vectorized loops, on torch's OpenMP threads. The forward pass sums per pixel,
+image band by image band (one thread per band, the triangles in index order, so the image is the same
+bit for bit for any thread count), ``log(1 + u)`` as the log of a running product (exactly renormalized:
+one log per pixel rather than per pair) and returns ``-expm1(S)`` itself; the backward pass recomputes
+the pairs triangle by triangle, sums the triangles' gradients per vertex and takes them through the
+projection (to the vertices and to the camera's frame, eye and focal length). Its pair set is the exact
+one (pairs within the radius), the eager scan's also holds the padding of its pieces, so the two differ
+by about eps per pixel (the cutoff's own error). When the threads of a parallel region start late
+(other processes hold the cores), the next calls run on one thread for a while, to the same result. Without
+a C compiler, or for other dtypes and devices, it falls back to "eager".
 
 The eager pair kernels are plain tensor functions. ``backend="compiled"`` runs them through
 ``torch.compile`` (needs a C++ compiler; the first call compiles for tens of seconds, later calls and
@@ -64,7 +67,7 @@ from pathlib import Path
 import torch
 
 from ipm.errors import InputError
-from ipm.render.camera import project
+from ipm.render.camera import camera_frame, focal_pixels
 from ipm.render.scan import check_mesh_tensors, span_rows, visible_triangles
 from ipm.types import Camera, TriMesh
 
@@ -229,48 +232,55 @@ class _SoftLogSum(torch.autograd.Function):
 
 
 class _SoftNative(torch.autograd.Function):
-    """The soft silhouette (H, W) by the C kernel (backend "native", on torch's OpenMP threads), from the
-    projected vertices xy (V, 2) (differentiable), ``ok`` (V,) bool (the vertices in front of the near
-    plane: faces with another vertex are dropped) and faces (F, 3) int64. The backward pass recomputes
-    the pairs (no storage) and sums the triangles' gradients per vertex."""
+    """The soft silhouette (H, W) by the C kernel (backend "native", on torch's OpenMP threads), projection
+    included: verts (V, 3), the camera's frame R (3, 3), eye (3,) and focal length fpx () (differentiable;
+    see :func:`ipm.render.camera.project`), faces (F, 3) int64, the principal point (cx, cy) and ``near``
+    (faces with a vertex nearer are dropped). The backward pass recomputes the pairs (no storage)."""
 
     @staticmethod
-    def forward(ctx, xy, ok, faces, width, height, sigma, radius):
-        x = xy.detach().contiguous()
-        dt, n_faces = x.dtype, faces.shape[0]
+    def forward(ctx, verts, R, eye, fpx, faces, cx, cy, near, width, height, sigma, radius):
+        dt, n_verts, n_faces = verts.dtype, verts.shape[0], faces.shape[0]
+        v = verts.detach()
+        cam = torch.cat([R.detach().reshape(9), eye.detach().reshape(3), fpx.detach().reshape(1),
+                         torch.tensor([cx, cy], dtype=dt)])
         far = 1e3 * (max(width, height) + 2 + radius)  # as span_rows: only guard non-finite values
         tri = torch.empty(n_faces, 6, dtype=dt)
         rows = torch.empty(n_faces, 2, dtype=torch.int32)
         S = torch.empty(height, width + _VEC, dtype=dt)
         sil = torch.empty(height, width, dtype=dt)
-        if _native_fn(dt, "fwd")(x.data_ptr(), x.shape[0], faces.data_ptr(), *faces.stride(), ok.data_ptr(),
-                                 n_faces, width, height, radius, sigma, far, tri.data_ptr(), rows.data_ptr(),
-                                 S.data_ptr(), sil.data_ptr(), _BAND, *_native_threads(n_faces)):
-            raise InputError(f"faces: expected vertex indices in [0, {x.shape[0]}), got "
+        rc = _native_fn(dt, "fwd")(v.data_ptr(), *v.stride(), n_verts, cam.data_ptr(), near, faces.data_ptr(),
+                                   *faces.stride(), n_faces, width, height, radius, sigma, far, tri.data_ptr(),
+                                   rows.data_ptr(), S.data_ptr(), sil.data_ptr(), *_native_threads(n_faces))
+        if rc == -1:
+            raise InputError(f"faces: expected vertex indices in [0, {n_verts}), got "
                              f"[{int(faces.min())}, {int(faces.max())}]")  # as check_mesh_tensors
-        ctx.saved = (tri, rows, faces, S)
-        ctx.args = (x.shape[0], width, height, radius, sigma)
+        if rc:
+            raise MemoryError("soft silhouette: the native kernel ran out of memory")
+        ctx.saved = (v, cam, faces, tri, rows, S)
+        ctx.args = (width, height, radius, sigma)
         return sil
 
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, gsil):
-        tri, rows, faces, S = ctx.saved
-        n_verts, width, height, radius, sigma = ctx.args
-        dt, n_faces = tri.dtype, tri.shape[0]
+        v, cam, faces, tri, rows, S = ctx.saved
+        width, height, radius, sigma = ctx.args
+        dt, n_verts, n_faces = v.dtype, v.shape[0], faces.shape[0]
         gsil = gsil.to(dt).contiguous()
         gS = torch.empty(height, width + _VEC, dtype=dt)
         gtri = torch.empty(n_faces, 6, dtype=dt)
         gxy = torch.empty(n_verts, 2, dtype=dt)
-        _native_fn(dt, "bwd")(tri.data_ptr(), rows.data_ptr(), faces.data_ptr(), *faces.stride(), n_faces, n_verts,
-                              width, height, radius, sigma, S.data_ptr(), gsil.data_ptr(), gS.data_ptr(),
-                              gtri.data_ptr(), gxy.data_ptr(), *_native_threads(n_faces))
-        return gxy, None, None, None, None, None, None
+        gverts = torch.empty(n_verts, 3, dtype=dt)
+        gcam = torch.empty(13, dtype=dt)
+        _native_fn(dt, "bwd")(v.data_ptr(), *v.stride(), n_verts, cam.data_ptr(), faces.data_ptr(), *faces.stride(),
+                              n_faces, width, height, radius, sigma, tri.data_ptr(), rows.data_ptr(), S.data_ptr(),
+                              gsil.data_ptr(), gS.data_ptr(), gtri.data_ptr(), gxy.data_ptr(), gverts.data_ptr(),
+                              gcam.data_ptr(), *_native_threads(n_faces))
+        return (gverts, gcam[:9].view(3, 3), gcam[9:12], gcam[12], None, None, None, None, None, None, None, None)
 
 
 _VEC = 8  # VEC of _NATIVE_C: padding columns of S and gS
 _ADAPT_THREADS = True  # False: exactly the thread count asked for (tests)
-_BAND = 8  # rows per band of the forward pass on several threads (the result does not depend on it)
 
 
 def _native_threads(n_faces: int) -> tuple[int, int]:
@@ -350,8 +360,9 @@ def _build_native():
     p, i64, i32, f64 = ctypes.c_void_p, ctypes.c_int64, ctypes.c_int, ctypes.c_double
     for x in "fd":
         fwd, bwd = getattr(dll, f"soft_fwd_{x}"), getattr(dll, f"soft_bwd_{x}")
-        fwd.argtypes = [p, i64, p, i64, i64, p, i64, i32, i32, f64, f64, f64, p, p, p, p, i32, i32, i32]
-        bwd.argtypes = [p, p, p, i64, i64, i64, i64, i32, i32, f64, f64, p, p, p, p, p, i32, i32]
+        fwd.argtypes = [p, i64, i64, i64, p, f64, p, i64, i64, i64, i32, i32, f64, f64, f64, p, p, p, p, i32, i32]
+        bwd.argtypes = [p, i64, i64, i64, p, p, i64, i64, i64, i32, i32, f64, f64, p, p, p, p, p, p, p, p, p,
+                        i32, i32]
         fwd.restype, bwd.restype = ctypes.c_int, None
     return dll
 
@@ -394,14 +405,15 @@ _NATIVE_INSTANCE = """
 #define FASTEXP {fastexp}
 """
 
-_NATIVE_C = r"""/* The soft silhouette in C (ipm/render/soft.py, backend "native"). Pixels are evaluated a row run at a
-   time (the run: the pixels within reach, exactly), VEC consecutive pixels at once (one vector; lanes past
-   the run, or out of reach, count for nothing) read and written in place: S and gS rows have VEC padding
-   columns. The forward pass splits the image into bands of rows, each summed by one thread over its
-   triangles in index order: every pixel's sum has the same terms in the same order whatever the bands
-   and threads, so the image is the same bit for bit. The backward pass goes by triangles (each gradient
-   is its own sum), then sums them per vertex in face order. Compiled once per REAL (float, double); the
-   formulas are those of the eager kernels. */
+_NATIVE_C = r"""/* The soft silhouette in C (ipm/render/soft.py, backend "native"), from the vertices and the camera
+   (the projection is done here too). Pixels are evaluated a row run at a time (the run: the pixels
+   within reach, exactly), VEC consecutive pixels at once (one vector; lanes past the run, or out of
+   reach, count for nothing) read and written in place: S and gS rows have VEC padding columns. The
+   forward pass splits the image into bands of rows, each summed by one thread over its triangles in
+   index order: every pixel's sum has the same terms in the same order whatever the bands and
+   threads, so the image is the same bit for bit. The backward pass goes by triangles (each gradient
+   is its own sum), then sums them per vertex in face order. Compiled once per REAL (float, double);
+   the formulas are those of the eager kernels. */
 #include <math.h>
 #include <omp.h>
 #include <stdint.h>
@@ -417,9 +429,12 @@ _NATIVE_C = r"""/* The soft silhouette in C (ipm/render/soft.py, backend "native
    processes hold the cores a thread can wait a scheduler time slice (milliseconds) for one, while
    libgomp's waiting threads spin. So when a thread of a region starts late (by 0.5 ms), the next calls
    run on one thread (the results do not depend on the thread count): 2, 4, ... up to 64 calls while it
-   goes on, then the thread count asked for again. */
+   goes on, then the thread count asked for again. Only regions that follow one of ours by less than
+   1 ms count: libgomp's threads sleep after a few milliseconds without work, and waking one can take
+   milliseconds too (measured on a virtual machine), which is no sign of contention. */
 #define MAXT 256
 static atomic_int soft_skip, soft_streak;
+static _Atomic double soft_last_end;
 
 static int soft_threads(int nt) {
     if (nt <= 1) return 1;
@@ -430,8 +445,11 @@ static int soft_threads(int nt) {
     return nt < MAXT ? nt : MAXT;
 }
 
+/* after a region of nt threads that began at t0, thread i starting at start[i] */
 static void soft_started(int nt, const double *start, double t0) {
     if (nt <= 1) return;
+    double prev = atomic_exchange_explicit(&soft_last_end, omp_get_wtime(), memory_order_relaxed);
+    if (t0 - prev > 1e-3) return;
     double late = 0;
     for (int i = 0; i < nt; i++) late = start[i] - t0 > late ? start[i] - t0 : late;
     int streak = atomic_load_explicit(&soft_streak, memory_order_relaxed);
@@ -512,7 +530,7 @@ static int64_t NAME(rows_of)(const REAL *p, double r, int H, int64_t *j0, int64_
    is convex and bounded by its edges moved out by r and arcs about its vertices, so on a row its ends are
    the extreme crossings of the row with the moved edges and the vertices' circles (every crossing lies in
    the set); a margin of 1e-3 px covers rounding */
-#define RUNS 8  /* rows at a time (one vector) */
+#define RUNS 16  /* rows at a time */
 typedef struct { double vx[3], vy[3], sx[3], sy[3], dx[3], inv[3], ok[3]; } NAME(Hull);
 
 static void NAME(hull_of)(const REAL *p, double r, NAME(Hull) *Q) {
@@ -666,29 +684,64 @@ static void NAME(fwd_band)(const REAL *tri, const int32_t *rows, const int64_t *
     }
 }
 
-/* Forward. xy (V, 2) projected vertices, faces (F, 3) with strides fs0, fs1 (-1 returned if an index is
-   out of range: those faces are dropped), ok (V,) 1 for the vertices in front of the near plane (faces
-   with another vertex are dropped). Writes tri (F, 6) the triangles as the kernel sees them (guarded
+/* The camera (ipm.render.camera.project, fused here; its matrix product would go to a threaded BLAS):
+   R (3, 3) the rows of the camera's frame, eye (3,), focal length fpx and principal point (cx, cy) in
+   pixels. Vertex q of verts (V, 3) with strides vs0, vs1: pc = R (v - eye), depth = -pc_z,
+   x = cx + fpx pc_x / z, y = cy - fpx pc_y / z with z = depth, or 1e-9 where |depth| <= 1e-9. */
+typedef struct { REAL R[9], eye[3], fpx, cx, cy; } NAME(Cam);
+
+static inline void NAME(to_camera)(const NAME(Cam) *C, const REAL *verts, int64_t vs0, int64_t vs1, int64_t q,
+                                   REAL *d, REAL *pc, REAL *inv, int *big) {
+    for (int k = 0; k < 3; k++) d[k] = verts[q * vs0 + k * vs1] - C->eye[k];
+    for (int j = 0; j < 3; j++) pc[j] = C->R[3 * j] * d[0] + C->R[3 * j + 1] * d[1] + C->R[3 * j + 2] * d[2];
+    REAL depth = -pc[2], eps = (REAL)1e-9;
+    *big = depth > eps || depth < -eps;
+    *inv = 1 / (*big ? depth : eps);
+}
+
+static inline int NAME(is_nan)(REAL v) {  /* by the bits: -ffast-math lets the compiler assume no NaN */
+    UINT b;
+    memcpy(&b, &v, sizeof b);
+    return (b & EXPBITS) == EXPBITS && (b & ~(EXPBITS | SIGNBIT));
+}
+
+/* Forward. verts (V, 3) with strides vs0, vs1 and the camera C (see NAME(Cam)): vertices nearer than
+   `near` drop their faces; faces (F, 3) with strides fs0, fs1 (returns -1 if an index is out of range,
+   -2 if out of memory, else 0). Writes tri (F, 6) the projected triangles as the kernel sees them (guarded
    against non-finite values), rows (F, 2) the rows they reach (j0 > j1 for none), S (H, W + VEC) per
-   pixel the sum of log(1 - D), and sil (H, W) = -expm1(S); bands of `band` rows on nt threads (one
-   parallel region, no barrier inside: the triangles are sorted into bands first). */
-int NAME(soft_fwd)(const REAL *xy, int64_t V, const int64_t *faces, int64_t fs0, int64_t fs1, const uint8_t *ok,
-                   int64_t F, int W, int H, double r, double sigma, double far, REAL *tri, int32_t *rows,
-                   REAL *S, REAL *sil, int band, int nt, int adapt) {
+   pixel the sum of log(1 - D), and sil (H, W) = -expm1(S); bands of rows on nt threads (one parallel
+   region, no barrier inside: the triangles are sorted into bands first). */
+int NAME(soft_fwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const REAL *cam, double near,
+                   const int64_t *faces, int64_t fs0, int64_t fs1, int64_t F, int W, int H, double r,
+                   double sigma, double far, REAL *tri, int32_t *rows, REAL *S, REAL *sil, int nt, int adapt) {
     REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma), farr = (REAL)far;
     nt = adapt ? soft_threads(nt) : (nt < MAXT ? nt : MAXT);
-    band = nt > 1 && band > 0 ? band : (H > 0 ? H : 1);  /* one thread: one band (no triangle set up twice) */
+    /* about 4 bands per thread (a triangle reaching two bands is set up twice); one thread: one band */
+    int band = nt > 1 ? (H + 4 * nt - 1) / (4 * nt) : H;
+    band = band < 8 ? 8 : (band > H ? H : band);
+    band = band > 0 ? band : 1;
     int64_t stride = W + VEC, nb = (H + band - 1) / band;
-    int64_t *start = calloc(nb + 1, sizeof *start), *order = malloc(nb * sizeof *order);
-    REAL *P = malloc(H * stride * sizeof *P);
+    int64_t *start = calloc(nb + 1, sizeof *start), *order = malloc(nb * sizeof *order), *list = 0, *fill = 0;
+    REAL *P = malloc(H * stride * sizeof *P), *xy = malloc((2 * V + 1) * sizeof *xy);
+    uint8_t *ok = malloc(V + 1);
     int bad = 0;
+    if (!start || !order || !P || !xy || !ok) { bad = -2; goto done; }
+    const NAME(Cam) *C = (const NAME(Cam) *)cam;
+    for (int64_t q = 0; q < V; q++) {
+        REAL d[3], pc[3], inv;
+        int big;
+        NAME(to_camera)(C, verts, vs0, vs1, q, d, pc, &inv, &big);
+        xy[2 * q] = C->cx + C->fpx * pc[0] * inv;
+        xy[2 * q + 1] = C->cy - C->fpx * pc[1] * inv;
+        ok[q] = !NAME(is_nan)(pc[2]) && -pc[2] >= (REAL)near;
+    }
     for (int64_t f = 0; f < F; f++) {
         REAL *p = tri + 6 * f;
         int32_t *rg = rows + 2 * f;
         int in = 1;
         for (int v = 0; v < 3; v++) {
             int64_t q = faces[f * fs0 + v * fs1];
-            if (q < 0 || q >= V) { bad = 1; in = 0; p[2 * v] = p[2 * v + 1] = 0; continue; }
+            if (q < 0 || q >= V) { bad = -1; in = 0; p[2 * v] = p[2 * v + 1] = 0; continue; }
             in = in && ok[q];
             p[2 * v] = NAME(guard)(xy[2 * q], farr);
             p[2 * v + 1] = NAME(guard)(xy[2 * q + 1], farr);
@@ -708,7 +761,9 @@ int NAME(soft_fwd)(const REAL *xy, int64_t V, const int64_t *faces, int64_t fs0,
         order[k] = b;
     }
     for (int64_t b = 0; b < nb; b++) start[b + 1] += start[b];
-    int64_t *list = malloc((start[nb] + 1) * sizeof *list), *fill = malloc((nb + 1) * sizeof *fill);
+    list = malloc((start[nb] + 1) * sizeof *list);
+    fill = malloc((nb + 1) * sizeof *fill);
+    if (!list || !fill) { bad = -2; goto done; }
     memcpy(fill, start, (nb + 1) * sizeof *fill);
     for (int64_t f = 0; f < F; f++)
         if (rows[2 * f] <= rows[2 * f + 1])
@@ -725,12 +780,15 @@ int NAME(soft_fwd)(const REAL *xy, int64_t V, const int64_t *faces, int64_t fs0,
         }
     }
     if (adapt) soft_started(nt, started, t0);
+done:
     free(fill);
     free(list);
     free(order);
     free(start);
     free(P);
-    return bad ? -1 : 0;
+    free(xy);
+    free(ok);
+    return bad;
 }
 
 /* triangle p, reaching rows ja .. jb: g (6) = d(sum_p gS[p] S[p]) / dp */
@@ -763,12 +821,14 @@ static void NAME(bwd_tri)(const REAL *p, int64_t ja, int64_t jb, int W, double r
 }
 
 /* Backward. tri, rows, S (H, W + VEC): from soft_fwd; gsil (H, W) = dL/dsil with sil = -expm1(S); gS
-   (H, W + VEC) and gtri (F, 6): scratch; faces as for soft_fwd. Writes gxy (V, 2) = dL/dxy (the sums of
-   the triangles' gradients per vertex, in face order). One parallel region (blocks of triangles), no
-   barrier inside. */
-void NAME(soft_bwd)(const REAL *tri, const int32_t *rows, const int64_t *faces, int64_t fs0, int64_t fs1,
-                    int64_t F, int64_t V, int W, int H, double r, double sigma, const REAL *S, const REAL *gsil,
-                    REAL *gS, REAL *gtri, REAL *gxy, int nt, int adapt) {
+   (H, W + VEC), gtri (F, 6) and gxy (V, 2): scratch; verts, cam, faces as for soft_fwd. Writes gverts
+   (V, 3) = dL/dverts and gcam (13) = dL/dcam (R, eye, fpx; cx and cy are constants). The triangles'
+   gradients are summed per vertex in face order. One parallel region (blocks of triangles), no barrier
+   inside. */
+void NAME(soft_bwd)(const REAL *verts, int64_t vs0, int64_t vs1, int64_t V, const REAL *cam,
+                    const int64_t *faces, int64_t fs0, int64_t fs1, int64_t F, int W, int H, double r,
+                    double sigma, const REAL *tri, const int32_t *rows, const REAL *S, const REAL *gsil,
+                    REAL *gS, REAL *gtri, REAL *gxy, REAL *gverts, REAL *gcam, int nt, int adapt) {
     REAL r2 = (REAL)(r * r), inv_sigma = (REAL)(1.0 / sigma);
     int64_t stride = W + VEC;
     for (int64_t j = 0; j < H; j++) {
@@ -795,6 +855,30 @@ void NAME(soft_bwd)(const REAL *tri, const int32_t *rows, const int64_t *faces, 
             gxy[2 * q] += gtri[6 * f + 2 * v];
             gxy[2 * q + 1] += gtri[6 * f + 2 * v + 1];
         }
+    /* through the projection: pc = R d, d = v - eye, x = cx + fpx pc_x inv, y = cy - fpx pc_y inv,
+       inv = 1 / z, z = -pc_z (a constant where |pc_z| <= 1e-9) */
+    const NAME(Cam) *C = (const NAME(Cam) *)cam;
+    double gR[9] = {0}, geye[3] = {0}, gfpx = 0;
+    for (int64_t q = 0; q < V; q++) {
+        REAL gx = gxy[2 * q], gy = gxy[2 * q + 1], *gv = gverts + 3 * q;
+        if (gx == 0 && gy == 0) { gv[0] = gv[1] = gv[2] = 0; continue; }  /* in no face, or none seen */
+        REAL d[3], pc[3], inv, gpc[3];
+        int big;
+        NAME(to_camera)(C, verts, vs0, vs1, q, d, pc, &inv, &big);
+        REAL a = gx * pc[0] - gy * pc[1];
+        gpc[0] = gx * C->fpx * inv;
+        gpc[1] = -gy * C->fpx * inv;
+        gpc[2] = big ? C->fpx * a * inv * inv : 0;  /* d inv / d pc_z = inv^2 */
+        gfpx += a * inv;
+        for (int k = 0; k < 3; k++) {
+            gv[k] = C->R[k] * gpc[0] + C->R[3 + k] * gpc[1] + C->R[6 + k] * gpc[2];
+            geye[k] -= gv[k];
+            for (int j = 0; j < 3; j++) gR[3 * j + k] += (double)gpc[j] * d[k];
+        }
+    }
+    for (int k = 0; k < 9; k++) gcam[k] = (REAL)gR[k];
+    for (int k = 0; k < 3; k++) gcam[9 + k] = (REAL)geye[k];
+    gcam[12] = (REAL)gfpx;
 }
 """
 
@@ -834,10 +918,13 @@ def soft_silhouette(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, si
         raise InputError(f"eps: expected a cutoff in (0, 0.5), got {eps}")
     W, H = int(camera.width), int(camera.height)
     if native:
-        # the kernel gathers the triangles and drops those behind the near plane (as visible_triangles)
-        xy, depth = project(verts, camera.to(dtype=verts.dtype, device=verts.device))
-        ok = (depth.detach() >= near).contiguous()
-        return _SoftNative.apply(xy, ok, faces.to(torch.int64), W, H, float(sigma), blur_radius(sigma, eps))
+        # the kernel projects (as camera.project), gathers the triangles and drops those behind the near
+        # plane (as visible_triangles)
+        cam = camera.to(dtype=verts.dtype, device=verts.device)
+        cx, cy = cam.principal_point
+        return _SoftNative.apply(verts, camera_frame(cam).to(verts.dtype), cam.eye.to(verts.dtype),
+                                 focal_pixels(cam).to(verts.dtype), faces.to(torch.int64), float(cx), float(cy),
+                                 float(near), W, H, float(sigma), blur_radius(sigma, eps))
     if backend == "native":
         backend = "eager"
     tri, _, _ = visible_triangles(verts, faces, camera, near)
