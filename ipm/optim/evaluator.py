@@ -119,14 +119,13 @@ class Evaluator:
             if self.sink is not None:
                 self.sink(rec)
         self.last = rec
-        key = tuple(sorted(disc.items()))
-        if not self.keep_best:
-            pass
-        elif loss < self.best_by_discrete.get(key, Best()).loss:
-            self.best_by_discrete[key] = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count,
-                                              extras)
-        if loss < self.best.loss:
-            self.best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count, extras)
+        if self.keep_best:
+            key = tuple(sorted(disc.items()))
+            best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count, extras)
+            if loss < self.best_by_discrete.get(key, Best()).loss:
+                self.best_by_discrete[key] = best
+            if loss < self.best.loss:
+                self.best = best
         self.count += 1
         if self.progress is not None:
             self.progress(self)

@@ -81,7 +81,7 @@ def nlopt_local(ev: Evaluator, x0: torch.Tensor, discrete: dict, steps: int, alg
             grad[:] = g[idx].numpy()
         return loss
 
-    minimize(opt, f, x0[idx].numpy().copy(), algorithm)
+    minimize(opt, f, x0[idx].numpy().copy(), algorithm, line_search=algorithm == "lbfgs")
     return best["x"], best["loss"]
 
 

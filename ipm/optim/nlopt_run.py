@@ -20,9 +20,12 @@ from ipm.optim.evaluator import BudgetExhausted
 log = logging.getLogger(__name__)
 
 
-def minimize(opt, objective: Callable[[np.ndarray, np.ndarray], float], z0: np.ndarray, label: str) -> None:
+def minimize(opt, objective: Callable[[np.ndarray, np.ndarray], float], z0: np.ndarray, label: str, *,
+             line_search: bool = False) -> None:
     """Run ``opt`` (an ``nlopt.opt`` with bounds and limits set) on ``objective(z, grad) -> loss`` from
-    ``z0 (d,)`` float64. The caller keeps the best point it saw; ``label`` names the run in the log."""
+    ``z0 (d,)`` float64. The caller keeps the best point it saw; ``label`` names the run in the log.
+    ``line_search``: the algorithm ends with nlopt's generic failure when its line search finds no
+    decrease (LD_LBFGS); after more than one evaluation that is a stop, not an error."""
     import nlopt
 
     failures: list[BaseException] = []
@@ -60,7 +63,7 @@ def minimize(opt, objective: Callable[[np.ndarray, np.ndarray], float], z0: np.n
         # keeps the best point it saw, as after any other stop
         if stopped:
             log.debug("nlopt %s stopped: %s after a forced stop", label, type(e).__name__)
-        elif not failures and label == "lbfgs" and isinstance(e, nlopt.runtime_error) and calls[0] > 1:
+        elif line_search and not failures and isinstance(e, nlopt.runtime_error) and calls[0] > 1:
             log.debug("nlopt %s: line search failed after %d evaluations", label, calls[0])
         else:
             raise
