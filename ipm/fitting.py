@@ -41,7 +41,7 @@ def _settings_from_json(d: dict):
 def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
         depth: str | Path | None = None, depth_scale: float = 0.001, parts: str | Path | None = None,
         image: str | Path | None = None, mask: str | Path | None = None, box=None,
-        intrinsics: str | Path | None = None, photo_size: int = 128,
+        intrinsics: str | Path | None = None, photo_size: int = 128, ground: bool = True,
         run_dir: str | Path | None = None, resume: bool = False, library: list[str] | None = None,
         progress: Callable | None = None, device=None, **settings) -> FitResult:
     """Fit ``generator`` (a name, tree file or Generator) to a target; see :class:`FitSettings` for
@@ -49,7 +49,8 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
 
     Targets (:mod:`ipm.io.fit_targets`): ``masks`` (a mask-set folder) with optional ``depth`` and ``parts``
     folders; a photo ``image`` with its ``mask`` or a ``box`` around the object, optional ``depth`` (a file)
-    and ``intrinsics`` (the camera is fitted: with intrinsics its pose only); or ``target_mesh``."""
+    and ``intrinsics`` (the camera is fitted: with intrinsics its pose only; with depth too, ``ground`` holds
+    its elevation at the plane the object stands on, :mod:`ipm.io.ground`); or ``target_mesh``."""
     from ipm.generators import get_generator
     from ipm.io.fit_targets import TargetFiles, load_target
     from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, read_trajectory, write_json
@@ -86,7 +87,7 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
         files = TargetFiles(masks=opt(masks), target_mesh=opt(target_mesh), up=up, depth=opt(depth),
                             depth_scale=depth_scale, parts=opt(parts), image=opt(image), mask=opt(mask),
                             box=None if box is None else tuple(int(v) for v in box), intrinsics=opt(intrinsics),
-                            size=photo_size)
+                            size=photo_size, ground=ground)
         if files.image is not None and settings.get("camera", "known") != "fit":
             settings = {**settings, "camera": "fit"}  # a photo has no cameras.json
         cfg = FitSettings(**settings)
@@ -115,8 +116,10 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
 
 
 def photo_scores(prob, best: dict, photo) -> dict:
-    """Scores of a photo fit at the photo's full resolution: mask IoU against the photo's mask, and where
-    the photo has depth, the median and mean absolute depth error in millimetres on the object's pixels
+    """Scores of a photo fit at the photo's full resolution: mask IoU against the photo's mask, where each
+    part of the fitted shape is seen (``parts_px``: a mug's handle right of its body has the larger x), the
+    camera elevation held at the ground (``ground_elevation_deg``, where measured), and where the photo has
+    depth, the median and mean absolute depth error in millimetres on the object's pixels
     that both see (``depth_px``: how many; millimetres assume the depth map reads in metres, as with the
     default ``depth_scale``)."""
     from ipm.io.fit_targets import uncrop_camera
@@ -128,7 +131,9 @@ def photo_scores(prob, best: dict, photo) -> dict:
     cam = uncrop_camera(prob.cameras(x)[0], photo)
     rast = R.rasterize(mesh.verts, mesh.faces, cam)
     fg = photo.mask > 0.5
-    out = {"photo_iou": round(float(mask_iou(rast.mask.numpy(), fg)), 5)}
+    out = {"photo_iou": round(float(mask_iou(rast.mask.numpy(), fg)), 5), "parts_px": _parts_px(mesh, rast)}
+    if photo.ground is not None:
+        out["ground_elevation_deg"] = round(photo.ground.elevation_deg, 2)
     if photo.depth is not None:
         import numpy as np
 
@@ -138,6 +143,25 @@ def photo_scores(prob, best: dict, photo) -> dict:
         out.update({"depth_median_mm": round(float(np.median(err)), 3) if err.size else None,
                     "depth_mean_mm": round(float(err.mean()), 3) if err.size else None,
                     "depth_px": int(both.sum())})
+    return out
+
+
+def _parts_px(mesh, rast) -> dict:
+    """Where each named part of ``mesh`` is seen in a raster: ``{name: [mean x, mean y, pixels]}`` (pixel
+    centers), for the parts seen at all; a mesh without groups counts as one part, ``"all"``."""
+    import numpy as np
+
+    face = rast.face.cpu().numpy()
+    seen = face >= 0
+    named = mesh.groups is not None and bool(mesh.group_names)
+    names = list(mesh.group_names) if named else ["all"]
+    group = mesh.groups.cpu().numpy() if named else np.zeros(len(mesh.faces), dtype=np.int64)
+    label = np.where(seen, group[np.where(seen, face, 0)], -1)
+    out = {}
+    for k, name in enumerate(names):
+        ys, xs = np.nonzero(label == k)
+        if xs.size:
+            out[name] = [round(float(xs.mean()) + 0.5, 1), round(float(ys.mean()) + 0.5, 1), int(xs.size)]
     return out
 
 

@@ -38,6 +38,9 @@ def register(app: typer.Typer) -> None:
         intrinsics: Annotated[Path | None, typer.Option(help=(
             "the photo's camera: JSON {fx, fy, cx, cy, width, height} or a YAML as ClearGrasp ships it"))] = None,
         size: Annotated[int, typer.Option(help="photo: pixels a side of the square crop the fit sees")] = 128,
+        ground: Annotated[bool, typer.Option("--ground/--no-ground", help=(
+            "photo with depth and intrinsics: hold the camera's elevation at the plane the object stands on, "
+            "measured in the depth around it"))] = True,
         depth_weight: Annotated[float, typer.Option("--depth-weight", help="weight of the depth loss")] = 1.0,
         parts_weight: Annotated[float, typer.Option("--parts-weight", help="weight of the part-label loss")] = 1.0,
         image_weight: Annotated[float, typer.Option("--image-weight", help="weight of the shading loss")] = 1.0,
@@ -58,6 +61,9 @@ def register(app: typer.Typer) -> None:
             "--range", help="NAME=LO:HI search a discrete parameter only in [LO, HI], repeatable")] = None,
         no_pose: Annotated[bool, typer.Option("--no-pose", help="keep the object pose fixed")] = False,
         prior: Annotated[float, typer.Option(help="weight of a pull towards the starting preset")] = 0.0,
+        polish: Annotated[float | None, typer.Option(help=(
+            "share of the budget for the final refinement of the best candidates with every parameter free "
+            "(default 0.15; a photo's details: 0.4)"))] = None,
         resume: Annotated[Path | None, typer.Option(help="continue an interrupted run folder")] = None,
         library: LibraryOpt = None,
         device: DeviceOpt = "auto",
@@ -143,13 +149,15 @@ def register(app: typer.Typer) -> None:
         try:
             result = run(gen, masks=masks, target_mesh=target_mesh, up=up, depth=depth, depth_scale=depth_scale,
                          parts=parts, image=image, mask=mask, box=box_px, intrinsics=intrinsics, photo_size=size,
+                         ground=ground,
                          depth_weight=depth_weight, parts_weight=parts_weight, image_weight=image_weight,
                          run_dir=resume or output,
                          resume=resume is not None, library=[str(p) for p in library] if library else None,
                          progress=progress, device=dev, budget=budget, seed=seed, discrete=discrete, camera=camera,
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,
                          pose=not no_pose,
-                         prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm))
+                         prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm),
+                         **({} if polish is None else {"polish": polish}))
         finally:
             if started:
                 bar.stop()

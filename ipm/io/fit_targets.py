@@ -17,7 +17,9 @@ side on each side), resampled to ``size`` pixels a side, through the camera of t
 intrinsics (``--intrinsics``) or, without them, a camera whose field of view is fitted, with the principal
 point at the photo's center. A depth map of the photo sets the scene's unit: depths are divided by
 ``unit`` so that the object's median depth is :data:`SCENE_DISTANCE` (the distance of the protocol's
-cameras, where the fit's camera search starts), and results are reported back in metres.
+cameras, where the fit's camera search starts), and results are reported back in metres. With depth and
+intrinsics, the plane the object stands on (a table) is measured around it (:mod:`ipm.io.ground`) and
+fixes the camera's elevation, which one silhouette hardly determines (``ground=False``: fitted instead).
 """
 
 from __future__ import annotations
@@ -31,11 +33,13 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
+from ipm.io.ground import Plane
 from ipm.types import Camera
 
 log = logging.getLogger(__name__)
 
 CROP_MARGIN = 0.3
+ROLL_WARN_DEG = 5.0  # a photo rolled more than this against its ground plane is reported
 SCENE_DISTANCE = 3.2
 
 
@@ -54,6 +58,7 @@ class TargetFiles:
     box: tuple[int, int, int, int] | None = None
     intrinsics: str | None = None
     size: int = 128
+    ground: bool = True
 
     def __post_init__(self) -> None:
         kinds = [k for k in ("masks", "target_mesh", "image") if getattr(self, k) is not None]
@@ -89,6 +94,7 @@ class TargetFiles:
         vals = {k: v for k, v in d.items() if k in known}
         if vals.get("box") is not None:
             vals["box"] = tuple(vals["box"])
+        vals.setdefault("ground", False)  # runs recorded before the ground plane was measured replay without it
         return TargetFiles(**vals)
 
 
@@ -99,7 +105,8 @@ class Photo:
     image: (H, W, 3) uint8; mask: (H, W) float32 in [0, 1]; depth: (H, W) metres (NaN: no reading) or
     None; camera: the full photo's camera at the fit's placeholder pose (intrinsics, or a guess
     without them); window: (x0, y0, side) of the square crop in photo pixels; scale: fit pixels per photo
-    pixel; unit: metres per scene unit (1 without depth)."""
+    pixel; unit: metres per scene unit (1 without depth); ground: the plane the object stands on, where
+    the depth and the intrinsics show one (:func:`ipm.io.ground.support_plane`), else None."""
 
     image: np.ndarray
     mask: np.ndarray
@@ -108,6 +115,7 @@ class Photo:
     window: tuple[int, int, int]
     scale: float
     unit: float
+    ground: Plane | None = None
 
 
 def load_target(files: TargetFiles, *, camera: str = "known", device=None, dtype=torch.float32):
@@ -293,16 +301,43 @@ def _photo_target(files: TargetFiles, device, dtype):
         if not np.isfinite(d_fit[m > 0.5]).any():
             raise InputError(f"--depth {files.depth}: expected a valid depth on some of the object's pixels at "
                              f"the fit's resolution, got none")
-    photo = Photo(image, mask, depth, full, (x0, y0, side), scale, unit)
+    ground = _ground(files, depth, mask, intr) if files.intrinsics is not None else None
+    photo = Photo(image, mask, depth, full, (x0, y0, side), scale, unit, ground)
 
     def t(a):
         return torch.as_tensor(a[None], device=device).to(dtype)
 
     target = MaskTarget(t(m), [cam.to(dtype=dtype, device=device)], depth=None if d_fit is None else t(d_fit),
-                        image=t(grey), known_intrinsics=files.intrinsics is not None)
+                        image=t(grey), known_intrinsics=files.intrinsics is not None,
+                        ground_elevation=None if ground is None else ground.elevation_deg)
     log.info("photo %dx%d: fitting a %d px crop at (%d, %d) resampled to %d px%s", W, H, side, x0, y0, n,
              f", {unit:.4g} m per scene unit" if depth is not None else "")
     return target, photo
+
+
+def _ground(files: TargetFiles, depth: np.ndarray | None, mask: np.ndarray, intr) -> Plane | None:
+    """The plane under the object where ``files.ground`` asks for it and the depth shows one whose
+    elevation a fit's camera can take (:data:`ipm.optim.encoding.ELEV`); logged either way."""
+    from ipm.io.ground import support_plane
+    from ipm.optim.encoding import ELEV
+
+    if not files.ground or depth is None:
+        return None
+    plane = support_plane(depth, mask, intr.fy, intr.fy, intr.cx, intr.cy)
+    if plane is None:
+        log.info("ground: no plane found around the object in the depth map; the camera's elevation is fitted")
+        return None
+    if not ELEV[0] <= plane.elevation_deg <= ELEV[1]:
+        log.info("ground: the plane around the object gives an elevation of %.1f deg, outside the fit's "
+                 "%g..%g; the camera's elevation is fitted", plane.elevation_deg, *ELEV)
+        return None
+    log.info("ground: the object stands on a plane (%.0f%% of %d points around it, median residual %.1f mm): "
+             "camera elevation %.1f deg, held", 100 * plane.share, plane.points, 1000 * plane.residual,
+             plane.elevation_deg)
+    if abs(plane.roll_deg) > ROLL_WARN_DEG:
+        log.warning("ground: the photo is rolled by %.1f deg against the plane; the fit's camera has no roll",
+                    plane.roll_deg)
+    return plane
 
 
 def uncrop_camera(cam: Camera, photo: Photo) -> Camera:

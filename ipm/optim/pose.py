@@ -42,8 +42,13 @@ def pose_grid(prob: Problem, ev: Evaluator, d: dict, x: torch.Tensor | None = No
     yaws = list(YAWS) if prob.s.pose else [0.0]
     cams = [None]
     if prob.cam_fit:
-        # with known intrinsics the FOV coordinate is unused: one FOV of the grid is enough
-        cams = [c for c in CAMERA_GRID if not prob.target.known_intrinsics or c[2] == CAMERA_GRID[0][2]]
+        # with known intrinsics the FOV coordinate is unused, with a known ground the elevation's: one
+        # value of each is enough
+        ground = prob.target.ground_elevation
+        cams = [c for c in CAMERA_GRID if (not prob.target.known_intrinsics or c[2] == CAMERA_GRID[0][2])
+                and (ground is None or c[0] == CAMERA_GRID[0][0])]
+        if ground is not None:
+            cams = [(ground, d, f) for _, d, f in cams]
     scored = []
     for cam in cams:
         for yaw in yaws:

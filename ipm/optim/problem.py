@@ -111,6 +111,12 @@ class Problem:
         self.pose_mask = torch.ones(self.m, dtype=torch.float64)
         if not settings.pose:
             self.pose_mask[self.layout.pose] = 0
+        if self.cam_fit:  # camera coordinates the target fixes (camera_triple) are not searched
+            at = self.m - E.CAMERA_SIZE
+            if target.ground_elevation is not None:
+                self.pose_mask[at] = 0
+            if target.known_intrinsics:
+                self.pose_mask[at + 2] = 0
         # coarse to fine: detail parameters (per-section offsets, ...) stay at their start during the
         # search of a silhouette fit, which then explores fewer, better-determined dimensions; the
         # polish frees them. A mesh target determines them all: holding them there only lets the coarse
@@ -240,7 +246,8 @@ class Problem:
         return {"scale": r_t / max(r0, 1e-12), "t": tuple(float(x) for x in c_t)}
 
     def pose_json(self, x: torch.Tensor, discrete: Mapping[str, int] | None = None) -> dict:
-        _, t, yaw, scale, cam = self.decode(x.detach().double())
+        _, t, yaw, scale, _ = self.decode(x.detach().double())
+        cam = self.camera_triple(x.detach().double())
         c0, L0 = self.frame(discrete or {})
         out = {"translation": [float(v) for v in t], "yaw_deg": float(yaw), "scale": float(scale),
                "canonical_center": [float(v) for v in c0], "canonical_size": float(L0)}
@@ -314,16 +321,28 @@ class Problem:
         c = t.detach().double().numpy()
         return f, c - r, c + r
 
+    def camera_triple(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
+        """The fitted camera's (elevation, distance, FOV) as rendered (None without a camera fit): the
+        FOV of known intrinsics and the elevation of a known ground (:class:`MaskTarget`) replace the
+        coordinates of ``x``, which are then unused (zero gradient)."""
+        if not self.cam_fit:
+            return None
+        _, _, _, _, (elev, dist, fov) = self.decode(x)
+        c0 = self.target.cameras[0]
+        if self.target.known_intrinsics:
+            fov = c0.fov_deg.to(dtype=elev.dtype, device=elev.device)
+        if self.target.ground_elevation is not None:
+            elev = torch.as_tensor(self.target.ground_elevation, dtype=elev.dtype, device=elev.device)
+        return elev, dist, fov
+
     def cameras(self, x: torch.Tensor) -> list[Camera]:
         cams = self.target.cameras
         if not self.cam_fit:
             return cams
         from ipm.render.camera import orbit_camera
 
-        _, _, _, _, (elev, dist, fov) = self.decode(x)
+        elev, dist, fov = self.camera_triple(x)
         c0 = cams[0]
-        if self.target.known_intrinsics:  # the x coordinate of the FOV is then unused (zero gradient)
-            fov = c0.fov_deg.to(elev.dtype)
         return [orbit_camera(torch.zeros((), dtype=elev.dtype), elev, dist, fov_deg=fov, width=c0.width,
                              height=c0.height, cx=c0.cx, cy=c0.cy)]
 

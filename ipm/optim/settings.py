@@ -23,6 +23,7 @@ MESH_LR = 0.02
 # where the soft silhouette's 0.5 level lies within about 0.2 px of the hard one (measured on the
 # teacup-to-mug test: final exact IoU 0.96 with 0.15, 0.98 with 0.03)
 POLISH_SIGMA_FACTOR = 0.03
+POLISH_SHARE = 0.15  # default share of the budget for the polish (FitSettings.polish)
 CameraMode = Literal["known", "fit"]
 CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 
@@ -55,7 +56,7 @@ class FitSettings:
     # pull towards the starting preset in normalized space
     prior_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 0.0
     # share of the budget kept for the final gradient refinement
-    polish: Annotated[float, Meta(ge=0, le=1, extra={"noun": "a share of the budget"})] = 0.15
+    polish: Annotated[float, Meta(ge=0, le=1, extra={"noun": "a share of the budget"})] = POLISH_SHARE
     coarse_to_fine: bool = True      # silhouettes: hold the generator's detail parameters during the search
     lod: Any = None
     # SDF generators: meshing of the result

@@ -22,7 +22,9 @@ class MaskTarget:
     shows none of the named parts (background or another part);
     image: optional (K, H, W) grey photo in [0, 1] (shading is compared on the object's pixels);
     known_intrinsics: with ``camera="fit"``, the cameras' field of view and principal point are known
-    (only the camera's elevation and distance are fitted).
+    (only the camera's elevation and distance are fitted);
+    ground_elevation: with ``camera="fit"``, the camera's elevation in degrees where it is known (from the
+    plane the object stands on, :mod:`ipm.io.ground`): it is then held, not fitted.
     """
 
     masks: torch.Tensor
@@ -32,6 +34,7 @@ class MaskTarget:
     part_names: tuple[str, ...] = ()
     image: torch.Tensor | None = None
     known_intrinsics: bool = False
+    ground_elevation: float | None = None
 
     @property
     def cues(self) -> tuple[str, ...]:
