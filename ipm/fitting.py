@@ -35,6 +35,7 @@ def _settings_from_json(d: dict):
     if not isinstance(d, dict):
         raise InputError(f"settings: expected an object, got {type(d).__name__}")
     known = {f.name for f in fields(FitSettings)}
+    d = {"part_cost": 0.0, **d}  # runs recorded before the description length replay without it
     return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
 
 

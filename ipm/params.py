@@ -42,10 +42,15 @@ class Param:
     # changes the count keeps size x count, so a candidate with more floors starts as tall as the building
     # it came from (ipm.optim.problem.Problem.carry)
     per: str | None = None
+    # a discrete switch or count whose every unit adds a part of this name (a handle, a wing, a roof-top
+    # box): a fit charges FitSettings.part_cost per unit, so a part stays only where it pays for itself
+    adds: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in ("float", "int", "bool"):
             raise InputError(f"parameter {self.name!r}: expected kind float|int|bool, got {self.kind!r}")
+        if self.adds is not None and self.kind == "float":
+            raise InputError(f"parameter {self.name!r}: adds {self.adds!r} expects a bool or int count, got a float")
         if self.kind == "bool" and (self.lo, self.hi) != (0, 1):
             object.__setattr__(self, "lo", 0)
             object.__setattr__(self, "hi", 1)
@@ -87,6 +92,8 @@ class Param:
             out["detail"] = True
         if self.per:
             out["per"] = self.per
+        if self.adds:
+            out["adds"] = self.adds
         return out
 
 

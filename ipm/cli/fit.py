@@ -61,6 +61,9 @@ def register(app: typer.Typer) -> None:
             "--range", help="NAME=LO:HI search a discrete parameter only in [LO, HI], repeatable")] = None,
         no_pose: Annotated[bool, typer.Option("--no-pose", help="keep the object pose fixed")] = False,
         prior: Annotated[float, typer.Option(help="weight of a pull towards the starting preset")] = 0.0,
+        part_cost: Annotated[float | None, typer.Option("--part-cost", help=(
+            "loss added per part a discrete value adds (a handle, a wing): a part stays only where it "
+            "lowers the loss by more (default 0)"))] = None,
         polish: Annotated[float | None, typer.Option(help=(
             "share of the budget for the final refinement of the best candidates with every parameter free "
             "(default 0.15; a photo's details: 0.4)"))] = None,
@@ -157,7 +160,7 @@ def register(app: typer.Typer) -> None:
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,
                          pose=not no_pose,
                          prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm),
-                         **({} if polish is None else {"polish": polish}))
+                         **{k: v for k, v in (("polish", polish), ("part_cost", part_cost)) if v is not None})
         finally:
             if started:
                 bar.stop()

@@ -99,7 +99,9 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
 
     ev = Evaluator(prob.objective, settings.budget, sink=sink, replay=replay, progress=progress)
     try:
-        starts, presets, free_yaw = initial_starts(prob, ev)
+        # presets are ranked for strategies that seed a population with them (memetic)
+        rank = bool(getattr(STRATEGIES[settings.discrete], "uses_presets", False)) and bool(prob.searched)
+        starts, presets, free_yaw = initial_starts(prob, ev, rank=rank)
     except BudgetExhausted:
         starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
         presets = preset_starts(prob, starts[0][0])

@@ -198,6 +198,14 @@ class Problem:
             out = out.index_put((torch.tensor([i], device=theta.device),), v.clamp(p.lo, p.hi).reshape(1))
         return out
 
+    def part_cost(self, discrete: Mapping[str, int]) -> float:
+        """The description length of ``discrete`` (the starting values where absent): ``part_cost`` per part
+        its values add (:attr:`ipm.params.Param.adds`), a constant of the continuous values."""
+        if self.s.part_cost == 0:
+            return 0.0
+        d = {**self.d0, **discrete}
+        return self.s.part_cost * float(sum(int(d[p.name]) for p in self.gen.spec.discrete if p.adds))
+
     def clamp_discrete(self, d: Mapping[str, int]) -> dict:
         """``d`` with the searched values moved into their (possibly narrowed) ranges."""
         out = dict(d)
@@ -395,6 +403,7 @@ class Problem:
                 loss = self._mesh_loss(x, discrete)
             if self.s.prior_weight > 0:
                 loss = loss + self.s.prior_weight * L.prior_loss(x[: self.n], self.u_ref.to(x.dtype))
+            loss = loss + self.part_cost(discrete)
             grad = None
             if need_grad:
                 (g,) = torch.autograd.grad(loss, x, allow_unused=True)

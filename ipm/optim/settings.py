@@ -24,6 +24,7 @@ MESH_LR = 0.02
 # teacup-to-mug test: final exact IoU 0.96 with 0.15, 0.98 with 0.03)
 POLISH_SIGMA_FACTOR = 0.03
 POLISH_SHARE = 0.15  # default share of the budget for the polish (FitSettings.polish)
+PART_COST = 0.0
 CameraMode = Literal["known", "fit"]
 CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 
@@ -62,6 +63,9 @@ class FitSettings:
     # SDF generators: meshing of the result
     resolution: Annotated[int, Meta(ge=8, extra={"noun": "a meshing resolution"})] = 128
     ties: bool = True                # discrete values the input cannot tell apart go to the preset's (break_ties)
+    # description length: added to the loss per part a discrete value adds (Param.adds: a handle, a wing,
+    # a roof-top box), so that a part stays only where it lowers the loss by more (PART_COST)
+    part_cost: Annotated[float, Meta(ge=0, extra={"noun": "a loss per part"})] = PART_COST
     # weights of the cues beyond silhouettes (used where the target has them; ipm.losses.cues)
     depth_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
     parts_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0

@@ -130,3 +130,7 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
                 stall = 0
     except BudgetExhausted:
         return
+
+
+# the kept starts are followed by the generator's presets, best first (ipm.optim.pose.rank_presets)
+memetic.uses_presets = True
