@@ -16,8 +16,9 @@ from ipm.jacobian import check_mesh_jacobian, mesh_jacobian
 
 GEN = get_generator("building")
 PRESETS = sorted(GEN.presets)
-# vertices per closed part: box 8, window (box with a pocket) 16, balcony (L prism) 12, roof 8/6/6
-PART_VERTS = {"walls": {8}, "windows": {16}, "balconies": {12}, "doors": {8}, "roof": {6, 8}}
+# vertices per closed part: box 8, window (box with a pocket) 16, balcony (L prism) 12, roof flat 8,
+# gable 6, hipped 6, mansard 10
+PART_VERTS = {"walls": {8}, "windows": {16}, "balconies": {12}, "doors": {8}, "roof": {6, 8, 10}}
 
 
 def build(values):
@@ -127,7 +128,7 @@ def test_height_is_plinth_plus_floors_plus_roof_and_length_is_sections_times_wid
     assert size[2] == pytest.approx(values["depth"])
 
 
-@pytest.mark.parametrize("roof_type", [0, 1, 2])
+@pytest.mark.parametrize("roof_type", [0, 1, 2, 3])
 def test_roof_types_reach_the_roof_height(roof_type):
     values = GEN.values("house2", {"roof_type": roof_type})
     mesh = build(values)
@@ -192,5 +193,7 @@ def test_window_parameters_do_not_move_the_roof_and_roof_parameters_move_only_th
 
 def test_discrete_values_are_validated():
     theta, _ = GEN.split(GEN.values())
-    with pytest.raises(ValueError, match=r"parameter 'roof_type': expected a value in \[0, 2\], got 3"):
-        GEN.mesh(theta, {"roof_type": 3})
+    with pytest.raises(ValueError, match=r"parameter 'roof_type': expected a value in \[0, 3\], got 4"):
+        GEN.mesh(theta, {"roof_type": 4})
+    with pytest.raises(ValueError, match=r"parameter 'wings': expected a value in \[0, 3\], got 4"):
+        GEN.mesh(theta, {"wings": 4})
