@@ -171,9 +171,10 @@ def building_spec() -> ParamSpec:
         Param("roof_type", 0, 0, 3, "int", _ROOF_DOC),
         Param("has_door", 1, 0, 1, "bool", "an entrance porch per section"),
         Param("back_windows", 1, 0, 1, "bool", "windows on the back facade too"),
-        Param("wings", 0, 0, MAX_WINGS, "int", "number of wings attached to the main block"),
+        Param("wings", 0, 0, MAX_WINGS, "int", "number of wings attached to the main block", adds="wing"),
         *(p for _, disc in wings for p in disc),
-        Param("roof_boxes", 0, 0, MAX_ROOF_BOXES, "int", "number of boxes on the main roof (stair towers)"),
+        Param("roof_boxes", 0, 0, MAX_ROOF_BOXES, "int", "number of boxes on the main roof (stair towers)",
+              adds="roof box"),
     ))
 
 
