@@ -52,10 +52,13 @@ table1: $(STAMP) ## the Table-1 analogue: 17 real meshes, fits from 1, 2 and 4 v
 table-synthetic: $(STAMP) ## generator samples with known parameters, results/table_synthetic/
 	$(call run_bench,table_synthetic,table_synthetic)
 
+table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside the K = 1 fits, results/table_coverage/
+	$(call run_bench,table_coverage,table_coverage)
+
 table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
 	$(BIN)/python -m benchmarks.table_convert results/table_convert
 
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-convert clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage table-convert clean

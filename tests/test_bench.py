@@ -189,6 +189,19 @@ def test_methods_can_have_their_own_seeds(tmp_path):
         load_experiment(exp)
 
 
+def test_a_method_can_have_its_own_budget(tmp_path):
+    exp = tmp_path / "e.toml"
+    exp.write_text('name = "e"\nbudget = 300\n[[targets]]\nname = "a"\ngenerator = "dishes"\npreset = "mug"\n'
+                   '[[methods]]\nname = "bound"\nmethod = "ipm"\ngenerator = "dishes"\nbudget = 1500\n'
+                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\n')
+    e = load_experiment(exp)
+    assert e.method("bound").budget_or(e.budget) == 1500 and e.method("vh").budget_or(e.budget) == 300
+    assert "budget" not in e.method("bound").settings  # the bench's, not a fit setting
+    exp.write_text(exp.read_text().replace("budget = 1500", "budget = 0"))
+    with pytest.raises(InputError, match=r"method bound: Expected `int` >= 1 - at `\$.budget`"):
+        load_experiment(exp)
+
+
 def _scaled_target_cell(tmp_path, views: int, factor: float) -> tuple[dict, Path]:
     """Run one cell whose method returns the target itself scaled by ``factor`` about the first input
     camera's eye; returns (row, output folder)."""

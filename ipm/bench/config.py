@@ -87,6 +87,10 @@ class MethodSpec:
     targets: tuple[str, ...] | None = None  # None: every target
     seeds: tuple[int, ...] | None = None    # None: the experiment's seeds (deterministic methods: one)
     seeds_by_views: dict | None = None      # views -> seeds, where the file gives seeds per number of views
+    budget: int | None = None               # None: the experiment's budget
+
+    def budget_or(self, default: int) -> int:
+        return default if self.budget is None else self.budget
 
     def seeds_for(self, views: int) -> tuple[int, ...] | None:
         if self.seeds_by_views is not None:
@@ -176,6 +180,9 @@ class _MethodKeys(msgspec.Struct, forbid_unknown_fields=True):
     seeds: Annotated[list[Seed], Meta(min_length=1)] | dict[str, Annotated[list[Seed], Meta(min_length=1)]] | None \
         = None
     by_class: dict[str, dict[str, Any]] | None = None
+    # the method's own budget instead of the experiment's (a bound such as the coverage table's 8-view fit,
+    # not a competitor: tables compare methods at one budget)
+    budget: Annotated[int, Meta(ge=1, le=10_000_000)] | None = None
 
 
 class _File(msgspec.Struct, forbid_unknown_fields=True):
@@ -283,7 +290,7 @@ def load_experiment(path: str | Path) -> Experiment:
                 raise InputError(f"{path}: method {mk.name}: by_class must give a table of settings for the "
                                  f"class of every target it applies to; missing for {', '.join(missing)}")
         spec = MethodSpec(mk.name, mk.method, tuple(mk.views) if mk.views else None, settings, only, seeds,
-                          seeds_by_views)
+                          seeds_by_views, mk.budget)
         for t in applies or targets[:1]:
             try:
                 check_settings(mk.method, spec.settings_for(t))

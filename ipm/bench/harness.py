@@ -191,7 +191,7 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
     if cues:
         row["cues"] = cues.names()
     try:
-        pred = METHODS[spec.method](task, settings, exp.budget, cell.seed)
+        pred = METHODS[spec.method](task, settings, spec.budget_or(exp.budget), cell.seed)
     except MethodFailed as e:
         row.update(status="failed", error=str(e), wall_time_s=round(time.perf_counter() - t0, 3))
         return row
