@@ -323,11 +323,12 @@ def test_rings_are_superellipses_with_the_given_exponent_and_aspect(squareness, 
     rings = ring_grid(build(values, lod), lod)
     wall = rings[lod.bottom - 1: lod.bottom - 1 + lod.wall: (lod.wall - 1) // 8]      # control heights
     radii = torch.tensor([values[f"radius_{i}"] for i in range(9)], dtype=torch.float64)[:, None]
-    x, z = wall[..., 0] / radii, wall[..., 2] / (aspect * radii)
+    a, b = radii / aspect ** 0.5, radii * aspect ** 0.5         # half width along X, half depth along Z
+    x, z = wall[..., 0] / a, wall[..., 2] / b
     assert torch.allclose(x.abs() ** power + z.abs() ** power, torch.ones_like(x), atol=1e-12)
-    # half width along X, half depth along Z (the ring's vertices 0 and radial / 4 lie on the axes)
-    assert torch.allclose(wall[:, 0, 0], radii[:, 0], atol=1e-12)
-    assert torch.allclose(-wall[:, lod.radial // 4, 2], aspect * radii[:, 0], atol=1e-12)
+    # the ring's vertices 0 and radial / 4 lie on the axes
+    assert torch.allclose(wall[:, 0, 0], a[:, 0], atol=1e-12)
+    assert torch.allclose(-wall[:, lod.radial // 4, 2], b[:, 0], atol=1e-12)
     # the diagonal of a square section stands out by 2^(1/2 - 1/n)
     if aspect == 1.0:
         diag = torch.linalg.vector_norm(wall[:, lod.radial // 8, [0, 2]], dim=-1)

@@ -21,16 +21,20 @@ which the section then scales direction by direction):
 * **Spout.** A radial bulge ``spout`` of the top ``spout_length`` (fraction of the height) opposite
   the handle (towards -X), ``spout_width`` wide (radians, Gaussian in the angle).
 * **Section.** Every ring (outer and inner wall, rim, bottom; after the spout's bulge) is scaled about
-  the axis by ``rho(phi) = (|cos phi|^n + |sin phi / section_aspect|^n)^(-1/n)``: the superellipse with
-  half width ``R`` along X and half depth ``section_aspect * R`` along Z (Lame; Gielis's superformula
-  with m = 4, a = 1, b = aspect). ``section_squareness`` moves ``1/n`` linearly from 1/2 (n = 2, a
-  circle or an ellipse) to 1/10 (a square or rectangle with rounded corners; the diagonal then stands
-  out by ``2^0.4 = 1.32``). The defaults (0, 1) give rho = 1, the round vessel. Since rho > 0 scales a
-  whole direction's profile, that profile stays a simple closed loop and the rings stay star-shaped
-  about the axis: the body is a closed solid for every parameter vector. The inner wall is the outer
-  one *scaled*, not offset, so the thicknesses above hold across the wall at +-X and on the flat sides
-  of a squarish section with aspect 1; elsewhere they are only approximate: ``section_aspect`` times
-  them at +-Z, and up to 1.32 times them across the corners.
+  the axis by ``rho(phi) = (|cos phi / a|^n + |sin phi / b|^n)^(-1/n)``, the superellipse (Lame curve;
+  Gielis's superformula with m = 4) with half axes ``a R`` along X and ``b R`` along Z, where
+  ``a = 1 / sqrt(section_aspect)`` and ``b = sqrt(section_aspect)``: the aspect is the depth over the
+  width and keeps their geometric mean, so it changes the shape, not the size (a fit from a round
+  start then has no reason to flatten the section in order to shrink it: the dishes mug from two
+  views, from the teacup, came out 0.94 deep for 1 wide when the aspect scaled the depth alone).
+  ``section_squareness`` moves ``1/n`` linearly from 1/2 (n = 2: a circle or an ellipse) to 1/10 (a
+  square or a rectangle with rounded corners, the half widths along the axes unchanged; a square's
+  diagonal then stands out by ``2^0.4 = 1.32``). The defaults (0, 1) give rho = 1, the round vessel.
+  Since rho > 0 scales a whole direction's profile, that profile stays a simple closed loop and the
+  rings stay star-shaped about the axis: the body is a closed solid for every parameter vector. The
+  inner wall is the outer one *scaled*, not offset, so the thicknesses above are exact only for a
+  round section, and across the flat sides of a square one; elsewhere they are approximate: ``a`` and
+  ``b`` times them at +-X and +-Z, up to 1.32 times them across a square's corners.
 * **Handle** (``has_handle``). A closed tube with elliptic sections swept along a Catmull-Rom curve
   in the vertical plane at ``handle_azimuth`` (degrees from +X towards -Z). Its ends sit inside the
   wall at heights ``handle_top`` and ``handle_bottom`` (fractions of ``height``, kept between the
@@ -147,7 +151,7 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
     ps += [_f(f"radius_{i}", 0.4, 0.02, 2.0, f"outer radius at height {i}/{n_radii - 1} of the wall")
            for i in range(n_radii)]
     ps += [
-        _f("wall_thickness", 0.035, 0.002, 0.25, "wall thickness, measured across the wall (at +-X)"),
+        _f("wall_thickness", 0.035, 0.002, 0.25, "wall thickness, measured across the wall (round section)"),
         _f("bottom_thickness", 0.05, 0.002, 0.4, "bottom thickness (at most half the wall height)"),
         _f("rim_round", 1.0, 0.0, 1.0, "rim height over half its width: 0 flat, 1 half round"),
         _f("bottom_dome", 0.0, 0.0, 1.0, "rise of the outer bottom's center (foot ring), fraction"),
@@ -156,7 +160,8 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
         _f("spout_length", 0.2, 0.05, 0.6, "how far down the spout reaches (fraction of height)"),
         _f("section_squareness", 0.0, 0.0, 1.0,
            "cross-section: 0 round, 1 a square with rounded corners (superellipse exponent 2 .. 10)"),
-        _f("section_aspect", 1.0, 0.4, 1.6, "cross-section depth (along Z) over width (along X)"),
+        _f("section_aspect", 1.0, 0.4, 1.6,
+           "cross-section depth (along Z) over width (along X), at their geometric mean the radius"),
     ]
     ps += [_f(f"wall_thicken_{i}", 0.0, -0.1, 0.5, f"extra wall thickness at height {i}/{n_radii - 1} of the wall",
               detail=True)
@@ -490,7 +495,8 @@ def _section_logs(segments: int) -> np.ndarray:
 
 def _section(p, segments: int, like: torch.Tensor) -> torch.Tensor:
     """The section's radius factors ``rho (segments,)`` at the ring angles: the superellipse
-    ``|x|^n + |z / aspect|^n = 1`` in polar form, ``rho = (|cos|^n + |sin / aspect|^n)^(-1/n)``.
+    ``|x / a|^n + |z / b|^n = 1`` in polar form, ``rho = (|cos / a|^n + |sin / b|^n)^(-1/n)``, with
+    ``a = 1 / sqrt(aspect)`` and ``b = sqrt(aspect)``.
 
     ``1/n`` runs linearly from 1/2 (a circle, rho = 1) to ``1 / SQUARE_POWER`` with
     ``section_squareness``, so the diagonal stands out by ``2^(1/2 - 1/n)``: exponentially in the
@@ -499,8 +505,9 @@ def _section(p, segments: int, like: torch.Tensor) -> torch.Tensor:
     logs = mk.const(_section_logs, segments, like=like)                      # (2, S)
     inv = ssub(0.5, smul(p["section_squareness"], 0.5 - 1.0 / SQUARE_POWER))   # 1 / n, (1,)
     n = torch.reciprocal(inv)
-    tx = torch.exp(n * logs[0])
-    tz = torch.exp(n * (logs[1] - torch.log(p["section_aspect"])))
+    half = smul(torch.log(p["section_aspect"]), 0.5)
+    tx = torch.exp(n * (logs[0] + half))
+    tz = torch.exp(n * (logs[1] - half))
     return torch.exp(-inv * torch.log(tx + tz))
 
 
