@@ -161,7 +161,7 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
         _f("section_squareness", 0.0, 0.0, 1.0,
            "cross-section: 0 round, 1 a square with rounded corners (superellipse exponent 2 .. 10)"),
         _f("section_aspect", 1.0, 0.4, 1.6,
-           "cross-section depth (along Z) over width (along X), at their geometric mean the radius"),
+           "cross-section depth (along Z) over width (along X); the radius is their geometric mean"),
     ]
     ps += [_f(f"wall_thicken_{i}", 0.0, -0.1, 0.5, f"extra wall thickness at height {i}/{n_radii - 1} of the wall",
               detail=True)
@@ -499,8 +499,9 @@ def _section(p, segments: int, like: torch.Tensor) -> torch.Tensor:
     ``a = 1 / sqrt(aspect)`` and ``b = sqrt(aspect)``.
 
     ``1/n`` runs linearly from 1/2 (a circle, rho = 1) to ``1 / SQUARE_POWER`` with
-    ``section_squareness``, so the diagonal stands out by ``2^(1/2 - 1/n)``: exponentially in the
-    squareness, evenly to the eye. Powers are taken as ``exp(n log |x|)`` of constant logs.
+    ``section_squareness``, so a square section's diagonal stands out by ``2^(1/2 - 1/n)``, evenly in
+    its logarithm. Powers are taken as ``exp(n log |x|)`` of constant logs, finite in value and
+    derivative where cos or sin is 0.
     """
     logs = mk.const(_section_logs, segments, like=like)                      # (2, S)
     inv = ssub(0.5, smul(p["section_squareness"], 0.5 - 1.0 / SQUARE_POWER))   # 1 / n, (1,)
@@ -519,7 +520,7 @@ def _section_at(rho: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
     radius is ``h / (cos(a - step/2) / cos(step/2))``, where ``h`` is the harmonic mean of ``rho_j`` and
     ``rho_{j+1}`` weighted by ``sin(step - a)`` and ``sin(a)``; so it lies in ``[h cos(step/2), h]``, as a
     circle's polygon lies between the inscribed circle and the circle itself. Returns ``h``
-    (continuous in ``alpha``; 1 for a round section).
+    (continuous in ``alpha``, smooth between the vertices; 1 for a round section).
     """
     S = rho.shape[0]
     step = 2.0 * math.pi / S
@@ -567,7 +568,8 @@ def _handle(p, v, prof: _Profile, rho: torch.Tensor, L: DishLod) -> torch.Tensor
     # attachment points inside the wall *as meshed*: the walls' sampled profiles interpolated
     # linearly (as the faces do) and the outer radius scaled by cos(pi / radial) (the polygon's
     # inscribed circle), `embed` of the way from the outer to the inner surface; then both scaled by
-    # the section's polygon at the azimuth, whose edge lies between that and the full radius
+    # `_section_at`, since the section's polygon lies between h cos(pi / radial) and h there, as the
+    # circle's between the two radii used here
     b, m = prof.bottom, prof.outer.shape[0]
     y_att = torch.minimum(torch.maximum(v["attach"] * H, b), Hw)                     # (2,) top, bottom
     R_att = _lerp_samples(prof.outer, smul(y_att / Hw, float(m - 1)))
