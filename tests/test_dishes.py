@@ -255,3 +255,189 @@ def test_per_height_wall_thickness():
     assert moved.any()
     assert float(r[moved].max()) < 0.9 * float(r.max())   # inner wall only (the outer one is wider)
     assert float(y[moved].max()) < 0.6 * float(y.max())   # near height 2/8, not at the rim
+
+
+# ----------------------------------------------------------------------------------------------
+# The superelliptic section
+# ----------------------------------------------------------------------------------------------
+
+ROUND = {"section_squareness": 0.0, "section_aspect": 1.0}
+# (vertices, sum of coordinates, sum of squares) of each preset at the low level of detail, as the round-only
+# generator made them before the section was added (commit b86de4d)
+ROUND_DIGESTS = {
+    "bottle": (938, 871.60941125497, 1209.626383950634),
+    "bowl": (938, 242.877674204038, 556.348090878518),
+    "glass": (938, 599.254138812258, 615.640983786005),
+    "mug": (1068, 627.038601491819, 565.339206710792),
+    "pitcher": (1068, 856.997793546534, 974.841860287921),
+    "plate": (938, 50.553128443284, 712.964275057225),
+    "teacup": (1068, 405.153909193354, 332.318367518565),
+    "vase": (938, 780.637858506218, 1012.046967729236),
+}
+
+
+def ring_grid(mesh, lod):
+    """The body's ring vertices ``(rings, radial, 3)`` float64 (the two poles dropped)."""
+    v = torch.as_tensor(part(mesh, "body")[0])
+    return v[1:-1].reshape(-1, lod.radial, 3)
+
+
+@pytest.mark.parametrize("preset", sorted(ROUND_DIGESTS))
+def test_the_default_section_is_the_round_vessel_of_before(preset):
+    assert all(GEN.spec[n].default == v for n, v in ROUND.items())
+    v = build(GEN.values(preset)).verts.detach().double()
+    n, total, squares = ROUND_DIGESTS[preset]
+    assert v.shape[0] == n
+    assert float(v.sum()) == pytest.approx(total, abs=1e-9)
+    assert float((v * v).sum()) == pytest.approx(squares, abs=1e-9)
+
+
+@pytest.mark.parametrize("preset", PRESETS)
+def test_a_round_section_revolves_the_profile_on_circles(preset):
+    """With the section forced round, the body equals the profile revolved on exact circles (the
+    revolution the generator used before it had a section), and the handle is as with rho = 1."""
+    from ipm.generators import _meshkit as mk
+    from ipm.generators.dishes import _handle, _Named, _profile
+
+    theta, discrete = GEN.split(GEN.values(preset, ROUND))
+    st = GEN._stage(theta, discrete["has_handle"], LOW)
+    assert torch.allclose(st["rho"], torch.ones_like(st["rho"]), rtol=0, atol=1e-15)
+    body = mk.revolve(st["r"], st["y"], LOW.radial, bottom=st["y_bottom"], top=st["y_top"],
+                      bulge=(st["q"], st["w"]))
+    mesh = GEN.mesh(theta, discrete, LOW)
+    assert torch.allclose(mesh.verts[:body.shape[0]], body, rtol=0, atol=1e-14)
+    if discrete["has_handle"]:
+        p = _Named(theta, GEN._index)
+        v = {key: theta[sl] for key, sl in GEN._slices.items()}
+        v["sections"] = v["sections"].reshape(2, -1).T
+        prof = _profile(p, v["radii"], LOW, v["thicken"])
+        handle = _handle(p, v, prof, torch.ones(LOW.radial, dtype=theta.dtype), LOW)
+        assert torch.allclose(mesh.verts[body.shape[0]:], handle, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("squareness, power", [(0.0, 2.0), (0.5, 1 / 0.3), (1.0, 10.0)])
+@pytest.mark.parametrize("aspect", [0.4, 1.0, 1.6])
+def test_rings_are_superellipses_with_the_given_exponent_and_aspect(squareness, power, aspect):
+    values = GEN.values("glass", {"section_squareness": squareness, "section_aspect": aspect})
+    lod = DishLod(radial=40, wall=33, rim=5, bottom=3)
+    rings = ring_grid(build(values, lod), lod)
+    wall = rings[lod.bottom - 1: lod.bottom - 1 + lod.wall: (lod.wall - 1) // 8]      # control heights
+    radii = torch.tensor([values[f"radius_{i}"] for i in range(9)], dtype=torch.float64)[:, None]
+    a, b = radii / aspect ** 0.5, radii * aspect ** 0.5         # half width along X, half depth along Z
+    x, z = wall[..., 0] / a, wall[..., 2] / b
+    assert torch.allclose(x.abs() ** power + z.abs() ** power, torch.ones_like(x), atol=1e-12)
+    # the ring's vertices 0 and radial / 4 lie on the axes
+    assert torch.allclose(wall[:, 0, 0], a[:, 0], atol=1e-12)
+    assert torch.allclose(-wall[:, lod.radial // 4, 2], b[:, 0], atol=1e-12)
+    # the diagonal of a square section stands out by 2^(1/2 - 1/n)
+    if aspect == 1.0:
+        diag = torch.linalg.vector_norm(wall[:, lod.radial // 8, [0, 2]], dim=-1)
+        assert torch.allclose(diag, radii[:, 0] * 2 ** (0.5 - 1 / power), atol=1e-12)
+
+
+def test_flat_sides_of_a_square_section_are_as_thick_as_the_wall():
+    """The inner ring is the outer one scaled, so the flat sides of a square section keep
+    ``wall_thickness`` (measured along X at several depths z; a round section's wall is 1 / cos 30 deg
+    = 1.15 times as thick along X at z = R / 2)."""
+    t = 0.03
+    values = GEN.values("glass", {"section_squareness": 1.0, "wall_thickness": t})
+    bv, bf = part(build(values, "medium"), "body")
+    R, y = values["radius_4"], 0.5 * values["height"]
+    xs = np.linspace(0.7 * R, 1.1 * R, 801)
+    for z in (0.0, 0.25 * R, 0.5 * R):
+        pts = np.stack([xs, np.full_like(xs, y), np.full_like(xs, z)], -1)
+        width = (igl.winding_number(bv, bf, pts) > 0.5).sum() * (xs[1] - xs[0])
+        assert width == pytest.approx(t, rel=0.06), z
+
+
+SQUARE = {"section_squareness": 1.0, "section_aspect": 1.0}
+OVAL = {"section_squareness": 0.0, "section_aspect": 0.55}
+
+
+@pytest.mark.parametrize("preset, overrides", [
+    ("mug", {**SQUARE, "handle_azimuth": 35.0, "spout": 0.1}),       # azimuths off the ring's vertices:
+    ("pitcher", {**OVAL, "handle_azimuth": -100.0}),                  # the handle's ends have kinks there
+    ("teacup", {"section_squareness": 0.45, "section_aspect": 1.4, "handle_azimuth": 128.0}),
+    ("tumbler", {}),
+    ("glass", {"section_squareness": 1.0, "section_aspect": 0.4}),
+])
+def test_jacobian_of_square_and_oval_sections_matches_central_differences(preset, overrides):
+    theta, discrete = GEN.split(GEN.values(preset, overrides))
+    check = check_mesh_jacobian(lambda t: GEN.mesh(t, discrete, LOW).verts, theta)
+    assert check.max_rel_error <= 1e-6, check
+    J = GEN.jacobian(theta, discrete, LOW)
+    names = [p.name for p in GEN.spec.continuous]
+    for name in ROUND:  # the section moves the body (and the handle's ends)
+        assert torch.count_nonzero(J[:, names.index(name)]) > 0, name
+
+
+@pytest.mark.parametrize("preset", ["mug", "glass"])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_section_derivatives_are_finite_where_cos_or_sin_vanish(preset, dtype):
+    """|cos|^n and |sin|^n at the ring vertices on the axes (cos or sin 0: d/dn of |x|^n is x^n log|x|)
+    and at the extreme exponents and aspects: finite everywhere, and zero on the axes, where rho is 1 (or
+    the aspect) whatever the exponent."""
+    names = [p.name for p in GEN.spec.continuous]
+    for squareness in (0.0, 1.0):
+        for aspect in (0.4, 1.0, 1.6):
+            values = GEN.values(preset, {"section_squareness": squareness, "section_aspect": aspect,
+                                         "handle_azimuth": 7.0})
+            theta, discrete = GEN.split(values, dtype)
+            J = GEN.jacobian(theta, discrete, LOW)
+            assert torch.isfinite(J).all()
+            rings = J[3:3 * (GEN.counts({"has_handle": 0}, LOW)[0] - 1)].reshape(-1, LOW.radial, 3, len(names))
+            d_sq = rings[..., names.index("section_squareness")]
+            for j in range(0, LOW.radial, LOW.radial // 4):
+                assert float(d_sq[:, j].abs().max()) <= 1e-5 * float(d_sq.abs().max()) + 1e-30, j
+
+
+@pytest.mark.parametrize("preset, overrides", [("mug", SQUARE), ("pitcher", OVAL), ("teacup", {"section_aspect": 1.6}),
+                                               ("tumbler", {}), ("mug", {**SQUARE, "has_handle": 0})])
+@pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
+def test_structured_jacobian_equals_jacfwd_under_a_section(preset, overrides, dtype):
+    theta, discrete = GEN.split(GEN.values(preset, {"handle_azimuth": 50.0, **overrides}), dtype)
+    J = GEN.jacobian(theta, discrete, LOW)
+    ref = jacfwd(lambda t: GEN.mesh(t, discrete, LOW).verts.reshape(-1))(theta)
+    tol = 1e-12 if dtype == torch.float64 else 1e-5
+    assert torch.allclose(J, ref, rtol=tol, atol=tol * float(ref.abs().max()))
+
+
+def test_random_sections_at_the_extremes_give_closed_solids_with_touching_handles():
+    """Random parameters with the section at the corners of its range (and anywhere inside), handles
+    on: closed, consistently wound, outward, non-degenerate; the handle's ends in the wall."""
+    rng = np.random.default_rng(17)
+    corners = [(s, a) for s in (0.0, 1.0) for a in (0.4, 1.6)]
+    for i in range(120):
+        values = GEN.spec.random(rng)
+        values["has_handle"] = 1
+        if i % 2 == 0:
+            values["section_squareness"], values["section_aspect"] = corners[(i // 2) % 4]
+        mesh = build(values)
+        what = f"random set {i}: {values}"
+        check_closed_solid_fast(*part(mesh, "body"), what)
+        check_closed_solid_fast(*part(mesh, "handle"), what)
+        check_handle_touches_body(mesh, what, LOW.radial)
+
+
+@pytest.mark.parametrize("section", [SQUARE, OVAL, {"section_squareness": 1.0, "section_aspect": 0.4},
+                                     {"section_squareness": 0.6, "section_aspect": 1.6}])
+def test_handle_ends_are_embedded_in_square_and_oval_walls(section):
+    """At every azimuth (on and between the ring's vertices) and level of detail, the preset handles'
+    ends lie inside the wall of the section's body."""
+    for lod in ("low", "medium"):
+        for preset in ("mug", "teacup", "pitcher"):
+            for azimuth in np.arange(8) * 46.9 - 180.0:  # from a vertex (-180) to between them
+                mesh = build(GEN.values(preset, {**section, "handle_azimuth": float(azimuth)}), lod)
+                bv, bf = part(mesh, "body")
+                ends = part(mesh, "handle")[0][[0, -1]]
+                assert np.all(igl.winding_number(bv, bf, ends) > 0.5), (preset, lod, azimuth)
+
+
+def test_tumbler_preset_is_a_tapered_square_cup_without_handle():
+    values = GEN.values("tumbler")
+    assert values["has_handle"] == 0 and values["section_squareness"] > 0.5
+    rings = ring_grid(build(values, "medium"), LODS["medium"])
+    top, foot = rings[LODS["medium"].bottom - 2 + LODS["medium"].wall], rings[LODS["medium"].bottom - 1]
+    assert float(top[:, 0].max()) > 1.3 * float(foot[:, 0].max())              # wider at the top
+    diag = torch.linalg.vector_norm(top[LODS["medium"].radial // 8, [0, 2]])
+    assert float(diag) > 1.15 * float(top[0, 0])                                 # square: corners stand out

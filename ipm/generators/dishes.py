@@ -1,7 +1,8 @@
-"""Dishes: a revolved, thick-walled vessel (mug, cup, glass, bowl, plate, vase, bottle, pitcher)
-with an optional handle, differentiable in all continuous parameters.
+"""Dishes: a revolved, thick-walled vessel (mug, cup, glass, bowl, plate, vase, bottle, pitcher,
+square tumbler) with an optional handle, differentiable in all continuous parameters.
 
-Geometry (Y up, the base at y = 0, revolved about Y):
+Geometry (Y up, the base at y = 0, revolved about Y; the radii below are those of a round section,
+which the section then scales direction by direction):
 
 * **Outer wall.** ``radius_0 .. radius_{k-1}`` at evenly spaced heights from the base to the top of
   the wall are joined by a uniform Catmull-Rom spline (it passes through every control radius).
@@ -19,15 +20,33 @@ Geometry (Y up, the base at y = 0, revolved about Y):
   bottom's center (a foot ring), as a fraction of 0.8 times the bottom thickness.
 * **Spout.** A radial bulge ``spout`` of the top ``spout_length`` (fraction of the height) opposite
   the handle (towards -X), ``spout_width`` wide (radians, Gaussian in the angle).
+* **Section.** Every ring (outer and inner wall, rim, bottom; after the spout's bulge) is scaled about
+  the axis by ``rho(phi) = (|cos phi / a|^n + |sin phi / b|^n)^(-1/n)``, the superellipse (Lame curve;
+  Gielis's superformula with m = 4) with half axes ``a R`` along X and ``b R`` along Z, where
+  ``a = 1 / sqrt(section_aspect)`` and ``b = sqrt(section_aspect)``: the aspect is the depth over the
+  width and keeps their geometric mean, so it changes the shape, not the size (a fit from a round
+  start then has no reason to flatten the section in order to shrink it: the dishes mug from two
+  views, from the teacup, came out 0.94 deep for 1 wide when the aspect scaled the depth alone).
+  ``section_squareness`` moves ``1/n`` linearly from 1/2 (n = 2: a circle or an ellipse) to 1/10 (a
+  square or a rectangle with rounded corners, the half widths along the axes unchanged; a square's
+  diagonal then stands out by ``2^0.4 = 1.32``). The defaults (0, 1) give rho = 1, the round vessel.
+  Since rho > 0 scales a whole direction's profile, that profile stays a simple closed loop and the
+  rings stay star-shaped about the axis: the body is a closed solid for every parameter vector. The
+  inner wall is the outer one *scaled*, not offset, so the thicknesses above are exact only for a
+  round section, and across the flat sides of a square one; elsewhere they are approximate: ``a`` and
+  ``b`` times them at +-X and +-Z, up to 1.32 times them across a square's corners.
 * **Handle** (``has_handle``). A closed tube with elliptic sections swept along a Catmull-Rom curve
   in the vertical plane at ``handle_azimuth`` (degrees from +X towards -Z). Its ends sit inside the
   wall at heights ``handle_top`` and ``handle_bottom`` (fractions of ``height``, kept between the
   inner bottom and the top of the wall), ``handle_embed`` of the way from the outer to the inner
   wall *as meshed* (the sampled walls interpolated linearly, the outer one shrunk to the radial
-  polygon's inscribed circle), so they are inside the body at every level of detail wherever the
-  wall is thicker than the polygon's sag, and meet the wall horizontally. Five inner control points
-  stand out by ``handle_out_i * handle_reach`` and are lifted by ``handle_lift_i`` times the
-  attachment span. Section semi-axes: ``handle_thickness`` (in the handle's plane) and
+  polygon's inscribed circle, both scaled by the section's polygon at the azimuth: a harmonic
+  interpolation of rho between the two ring vertices around it, see :func:`_section_at`), so they are
+  inside the body at every level of detail wherever the wall is thicker than the polygon's sag, and
+  meet the wall horizontally (radially). Under a non-round section the ends are piecewise smooth in
+  ``handle_azimuth``, with kinks where it crosses a ring vertex, as the meshed wall has. Five inner
+  control points stand out by ``handle_out_i * handle_reach`` and are lifted by ``handle_lift_i``
+  times the attachment span. Section semi-axes: ``handle_thickness`` (in the handle's plane) and
   ``handle_width`` (across it), scaled linearly by ``1 -/+ handle_taper`` from top to bottom, plus
   per-section offsets ``handle_thicken_i`` / ``handle_widen_i`` (seven sections, splined).
 
@@ -55,6 +74,10 @@ from ipm.types import TriMesh
 N_RADII = 9
 N_HANDLE = 7                      # handle control points (two on the wall, five free)
 INNER_MIN = 0.1                   # inner radius >= INNER_MIN * outer radius
+SQUARE_POWER = 10.0               # superellipse exponent at section_squareness = 1
+# |cos|, |sin| of the ring angles below this count as this: |x|^n then has a finite derivative in n at 0
+# (x^n <= 1e-60 there, far below any rounding of rho)
+SECTION_FLOOR = 1e-30
 RADIUS_MIN = 0.01                 # the outer spline is clamped to at least this radius
 SECTION_MIN = 1e-3                # smallest handle semi-axis
 
@@ -121,20 +144,24 @@ _LIFT = (0.15, 0.08, 0.0, -0.08, -0.15)
 
 
 def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
-    """The parameters of a dish with ``n_radii`` profile radii (58 continuous + ``has_handle`` for 9)."""
+    """The parameters of a dish with ``n_radii`` profile radii (60 continuous + ``has_handle`` for 9)."""
     if n_radii < 3:
         raise InputError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
     ps = [_f("height", 1.0, 0.02, 4.0, "total height, base to the top of the rim")]
     ps += [_f(f"radius_{i}", 0.4, 0.02, 2.0, f"outer radius at height {i}/{n_radii - 1} of the wall")
            for i in range(n_radii)]
     ps += [
-        _f("wall_thickness", 0.035, 0.002, 0.25, "wall thickness, measured across the wall"),
+        _f("wall_thickness", 0.035, 0.002, 0.25, "wall thickness, measured across the wall (round section)"),
         _f("bottom_thickness", 0.05, 0.002, 0.4, "bottom thickness (at most half the wall height)"),
         _f("rim_round", 1.0, 0.0, 1.0, "rim height over half its width: 0 flat, 1 half round"),
         _f("bottom_dome", 0.0, 0.0, 1.0, "rise of the outer bottom's center (foot ring), fraction"),
         _f("spout", 0.0, 0.0, 0.5, "radial bulge of the lip opposite the handle"),
         _f("spout_width", 0.35, 0.1, 1.5, "angular width of the spout (radians)"),
         _f("spout_length", 0.2, 0.05, 0.6, "how far down the spout reaches (fraction of height)"),
+        _f("section_squareness", 0.0, 0.0, 1.0,
+           "cross-section: 0 round, 1 a square with rounded corners (superellipse exponent 2 .. 10)"),
+        _f("section_aspect", 1.0, 0.4, 1.6,
+           "cross-section depth (along Z) over width (along X); the radius is their geometric mean"),
     ]
     ps += [_f(f"wall_thicken_{i}", 0.0, -0.1, 0.5, f"extra wall thickness at height {i}/{n_radii - 1} of the wall",
               detail=True)
@@ -188,6 +215,10 @@ PRESETS: dict[str, dict[str, Value]] = {
              "wall_thickness": 0.025, "bottom_thickness": 0.08, "has_handle": 0},
     "bottle": {"height": 1.8, **_radii([0.35, 0.36, 0.36, 0.36, 0.35, 0.28, 0.14, 0.1, 0.1]),
                "wall_thickness": 0.02, "bottom_thickness": 0.05, "bottom_dome": 0.5, "has_handle": 0},
+    # square tapered tumbler (the ClearGrasp cups: rounded corners, about 1.6 times as tall as wide)
+    "tumbler": {"height": 1.3, **_radii([0.27 + 0.15 * i / 8 for i in range(9)]),
+                "wall_thickness": 0.015, "bottom_thickness": 0.03, "rim_round": 1.0,
+                "section_squareness": 0.8, "has_handle": 0},
     "pitcher": {"height": 1.4, **_radii([0.38, 0.42, 0.45, 0.46, 0.44, 0.4, 0.36, 0.36, 0.38]),
                 "wall_thickness": 0.03, "bottom_thickness": 0.05, "spout": 0.15, "spout_width": 0.4,
                 "spout_length": 0.25, "has_handle": 1, "handle_top": 0.85, "handle_bottom": 0.3,
@@ -217,7 +248,8 @@ class DishesGenerator(Generator):
 
     name = "dishes"
     kind = "mesh"
-    description = "revolved vessel (spline profile, wall thickness, rim, spout) with an optional handle"
+    description = ("revolved vessel (spline profile, wall thickness, rim, spout, round to square section) "
+                   "with an optional handle")
     # measured on the real mug scan from 1 view at 256 px, 500 evaluations: lr 0.02 ends at input IoU 0.95
     # with a wavy profile and the handle turned out of sight (held-out 0.65); 0.005 reaches 0.99 (0.90)
     mask_lr = 0.005
@@ -240,6 +272,7 @@ class DishesGenerator(Generator):
 
         # parameters used as vectors are contiguous in theta: one slice instead of a cat of scalars
         self._slices = {"radii": run("radius_0", self.k), "thicken": run("wall_thicken_0", self.k),
+                        "section": run("section_squareness", 2),
                         "attach": run("handle_top", 2),
                         "out": run("handle_out_1", 5), "lift": run("handle_lift_1", 5),
                         "sections": run("handle_widen_0", 2 * N_HANDLE)}
@@ -256,16 +289,18 @@ class DishesGenerator(Generator):
     def _stage(self, theta: torch.Tensor, has_handle: int, L: DishLod) -> dict[str, torch.Tensor]:
         """Everything before the revolution: the profile loop ``r, y (P,)``, the pole heights
         ``y_bottom, y_top (1,)``, the spout bulge factors ``q (P,)`` (per ring) and ``w (S,)`` (per
-        angle), and the handle's vertices ``(Vh, 3)``."""
+        angle), the section's radius factors ``rho (S,)`` (per angle), and the handle's vertices
+        ``(Vh, 3)``."""
         p = _Named(theta, self._index)
         v = {key: theta[sl] for key, sl in self._slices.items()}
         v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
         prof = _profile(p, v["radii"], L, v["thicken"])
         c, _ = mk.angles(L.radial, theta)
         out = {"r": prof.r, "y": prof.y, "y_bottom": prof.y_bottom, "y_top": prof.y_top,
-               "q": p["spout"] * _spout_height(p, prof.y), "w": _spout_angle(p, c)}
+               "q": p["spout"] * _spout_height(p, prof.y), "w": _spout_angle(p, c),
+               "rho": _section(p, L.radial, theta)}
         if has_handle:
-            out["handle"] = _handle(p, v, prof, L)
+            out["handle"] = _handle(p, v, prof, out["rho"], L)
         return out
 
     def _topology(self, has_handle: int, L: DishLod) -> mk.Topology:
@@ -288,8 +323,7 @@ class DishesGenerator(Generator):
         """
         has_handle, L = self._check(theta, discrete, lod)
         st = self._stage(theta, has_handle, L)
-        verts = mk.revolve_parts(st["r"], st["y"], L.radial, bottom=st["y_bottom"], top=st["y_top"],
-                                 bulge=(st["q"], st["w"]))
+        verts = _revolve(st, L.radial)
         if has_handle:
             verts.append(st["handle"])
         return self._topology(has_handle, L).mesh(verts)
@@ -298,14 +332,15 @@ class DishesGenerator(Generator):
         """``d verts / d theta``: ``(3V, n)`` (rows x0, y0, z0, x1, ...), equal to
         ``mesh_jacobian(lambda t: mesh(t, ...).verts, theta)`` but faster.
 
-        Forward mode runs only through :meth:`_stage` (the profile and the handle); the revolved
-        rings ``(r + q w) (cos, -sin)`` are bilinear in the profile, so their rows follow in closed
-        form, and only for the body's own parameters (the handle's never move the body).
+        Forward mode runs only through :meth:`_stage` (the profile, the section and the handle); the
+        revolved rings ``(r + q w) rho (cos, -sin)`` are products of per-ring and per-angle factors, so
+        their rows follow in closed form, and only for the body's own parameters (the handle's never
+        move the body).
         """
         from torch.func import jacfwd
 
         has_handle, L = self._check(theta, discrete, lod)
-        keys = ("r", "y", "q", "w", "y_bottom", "y_top") + (("handle",) if has_handle else ())
+        keys = ("r", "y", "q", "w", "rho", "y_bottom", "y_top") + (("handle",) if has_handle else ())
 
         def stage(t):
             st = self._stage(t, has_handle, L)
@@ -318,6 +353,7 @@ class DishesGenerator(Generator):
         P, S = st["r"].shape[0], L.radial
         c, s = mk.angles(S, theta)
         Jr, Jy, Jq, Jw = (J_st[k][..., :nb] for k in ("r", "y", "q", "w"))
+        sec = self._slices["section"]  # the only columns of d rho / d theta that can be nonzero
         n_body = 3 * (P * S + 2)
         n_rows = n_body + (J_st["handle"].numel() // n if has_handle else 0)
         # written in place: the (3V, n) result is tens of MB for fine meshes, and every extra pass over
@@ -328,6 +364,10 @@ class DishesGenerator(Generator):
         J_rr = torch.addcmul(Jr[:, None, :], st["q"][:, None, None], Jw[None, :, :])  # (P, S, nb)
         if bool((st["w"] != 0).any()):  # spout: the bulge factor varies with the angle
             J_rr.addcmul_(st["w"][None, :, None], Jq[:, None, :])
+        # the section: d (rr rho) = rho d rr + rr d rho
+        J_rr.mul_(st["rho"][None, :, None])
+        rr = torch.addcmul(st["r"][:, None], st["q"][:, None], st["w"][None, :])       # (P, S)
+        J_rr[..., sec].addcmul_(rr[:, :, None], J_st["rho"][None, :, sec])
         torch.mul(J_rr, c[None, :, None], out=body[:, :, 0])
         torch.mul(J_rr, s[None, :, None], out=body[:, :, 2]).neg_()
         body[:, :, 1] = Jy[:, None, :]
@@ -448,6 +488,62 @@ def _lerp_samples(values: torch.Tensor, s: torch.Tensor) -> torch.Tensor:
     return values[j] + (values[j + 1] - values[j]) * f
 
 
+def _section_logs(segments: int) -> np.ndarray:
+    """``(2, segments)``: log |cos| and log |sin| of the ring angles (floored at ``SECTION_FLOOR``)."""
+    return np.log(np.maximum(np.abs(mk.circle(segments)), SECTION_FLOOR))
+
+
+def _section(p, segments: int, like: torch.Tensor) -> torch.Tensor:
+    """The section's radius factors ``rho (segments,)`` at the ring angles: the superellipse
+    ``|x / a|^n + |z / b|^n = 1`` in polar form, ``rho = (|cos / a|^n + |sin / b|^n)^(-1/n)``, with
+    ``a = 1 / sqrt(aspect)`` and ``b = sqrt(aspect)``.
+
+    ``1/n`` runs linearly from 1/2 (a circle, rho = 1) to ``1 / SQUARE_POWER`` with
+    ``section_squareness``, so a square section's diagonal stands out by ``2^(1/2 - 1/n)``, evenly in
+    its logarithm. Powers are taken as ``exp(n log |x|)`` of constant logs, finite in value and
+    derivative where cos or sin is 0.
+    """
+    logs = mk.const(_section_logs, segments, like=like)                      # (2, S)
+    inv = ssub(0.5, smul(p["section_squareness"], 0.5 - 1.0 / SQUARE_POWER))   # 1 / n, (1,)
+    n = torch.reciprocal(inv)
+    half = smul(torch.log(p["section_aspect"]), 0.5)
+    tx = torch.exp(n * (logs[0] + half))
+    tz = torch.exp(n * (logs[1] - half))
+    return torch.exp(-inv * torch.log(tx + tz))
+
+
+def _section_at(rho: torch.Tensor, alpha: torch.Tensor) -> torch.Tensor:
+    """The radius factor of the section's *polygon* (the ring's edges) in direction ``alpha (1,)``
+    (radians), up to the polygon's sag: ``(1,)``.
+
+    Between the ring's vertices ``j`` and ``j + 1`` (angles ``a`` and ``step - a`` away) the edge's
+    radius is ``h / (cos(a - step/2) / cos(step/2))``, where ``h`` is the harmonic mean of ``rho_j`` and
+    ``rho_{j+1}`` weighted by ``sin(step - a)`` and ``sin(a)``; so it lies in ``[h cos(step/2), h]``, as a
+    circle's polygon lies between the inscribed circle and the circle itself. Returns ``h``
+    (continuous in ``alpha``, smooth between the vertices; 1 for a round section).
+    """
+    S = rho.shape[0]
+    step = 2.0 * math.pi / S
+    k = torch.floor(alpha.detach() / step)                                        # sector, any integer
+    a = alpha - smul(lift(k, alpha), step)                                        # in [0, step)
+    j = k.long() % S
+    r0, r1 = rho[j], rho[(j + 1) % S]
+    sa, sb = torch.sin(a), torch.sin(ssub(step, a))
+    return (sa + sb) * r0 * r1 / (sb * r1 + sa * r0)
+
+
+def _revolve(st: Mapping[str, torch.Tensor], segments: int) -> list[torch.Tensor]:
+    """The body's vertices from the stage ``st`` (:meth:`DishesGenerator._stage`) in
+    :func:`~ipm.generators._meshkit.revolve_parts` layout: ring vertex (i, j) is
+    ``(r_i + q_i w_j) rho_j (cos, -sin)`` at height ``y_i``."""
+    r = st["r"]
+    dirs = mk.const(mk.ring_dirs, segments, like=r)                          # (S, 3)
+    ey = mk.const(mk.unit, 1, like=r)
+    rr = torch.addcmul(r[:, None], st["q"][:, None], st["w"][None, :]) * st["rho"][None, :]
+    ring = (rr[..., None] * dirs + (st["y"][:, None] * ey)[:, None, :]).reshape(-1, 3)
+    return [st["y_bottom"][:, None] * ey, ring, st["y_top"][:, None] * ey]
+
+
 def _spout_angle(p, cos_phi: torch.Tensor) -> torch.Tensor:
     """Angular weight of the spout (1 at -X, Gaussian in the angle) for dual ``cos(phi)``."""
     w = p["spout_width"]
@@ -461,8 +557,9 @@ def _spout_height(p, y: torch.Tensor) -> torch.Tensor:
     return s * s
 
 
-def _handle(p, v, prof: _Profile, L: DishLod) -> torch.Tensor:
-    """Handle vertices ``(sections * ring + 2, 3)`` (loft layout with poles)."""
+def _handle(p, v, prof: _Profile, rho: torch.Tensor, L: DishLod) -> torch.Tensor:
+    """Handle vertices ``(sections * ring + 2, 3)`` (loft layout with poles); ``rho (S,)`` is the
+    section's radius factor at the ring angles (:func:`_section`)."""
     radii = v["radii"]
     dt, dev = radii.dtype, radii.device
     H, Hw = p["height"], prof.wall_top
@@ -470,14 +567,16 @@ def _handle(p, v, prof: _Profile, L: DishLod) -> torch.Tensor:
     ca, sa = torch.cos(alpha), torch.sin(alpha)
     # attachment points inside the wall *as meshed*: the walls' sampled profiles interpolated
     # linearly (as the faces do) and the outer radius scaled by cos(pi / radial) (the polygon's
-    # inscribed circle), `embed` of the way from the outer to the inner surface
+    # inscribed circle), `embed` of the way from the outer to the inner surface; then both scaled by
+    # `_section_at`, since the section's polygon lies between h cos(pi / radial) and h there, as the
+    # circle's between the two radii used here
     b, m = prof.bottom, prof.outer.shape[0]
     y_att = torch.minimum(torch.maximum(v["attach"] * H, b), Hw)                     # (2,) top, bottom
     R_att = _lerp_samples(prof.outer, smul(y_att / Hw, float(m - 1)))
     r_in = _lerp_samples(prof.inner, smul((y_att - b) / (Hw - b), float(m - 1)))
     bulge = p["spout"] * _spout_height(p, y_att) * _spout_angle(p, ca)
     outer = smul(R_att + bulge, math.cos(math.pi / L.radial))
-    rho_att = outer - p["handle_embed"] * (outer - (r_in + bulge))                   # (2,)
+    rho_att = (outer - p["handle_embed"] * (outer - (r_in + bulge))) * _section_at(rho, alpha)  # (2,)
     # control points in the handle's plane: (rho, y)
     s = mk.const(mk.steps, 1, N_HANDLE - 1, 1.0 / (N_HANDLE - 1), like=radii)
     top, bot = rho_att[:1], rho_att[1:]
