@@ -188,7 +188,7 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
     ps += [_f(f"handle_thicken_{i}", 0.0, -0.1, 0.1, f"half-thickness offset at handle section {i}",
               detail=True)
            for i in range(N_HANDLE)]
-    ps.append(Param("has_handle", 0, 0, 1, "bool", "1: add a handle"))
+    ps.append(Param("has_handle", 0, 0, 1, "bool", "1: add a handle", adds="handle"))
     return ParamSpec(tuple(ps))
 
 
