@@ -1,6 +1,7 @@
 """Dishes generator: closed, outward, non-degenerate bodies and handles for every preset and for random
 parameters; counts fixed by the discrete values and the level of detail; sizes as the parameters
-say; Jacobians equal to float64 central differences."""
+say; Jacobians equal to float64 central differences. The superelliptic section: its defaults give the
+round meshes of before, its rings are the superellipses it names, and it keeps all of the above."""
 
 from __future__ import annotations
 
