@@ -36,6 +36,7 @@ BAD = {
     "depth_weight": ("depth_weight", [-1.0, NAN, INF, "heavy", True]),
     "parts_weight": ("parts_weight", [-0.5, NAN, None]),
     "image_weight": ("image_weight", [-2.0, INF, False]),
+    "part_cost": ("part_cost", [-0.01, INF, NAN, True]),
     "memetic": ("memetic", ["fast", 3, [1, 2]]),
     "nlopt": ("nlopt", ["GN_ESCH", 0]),
     "memetic.population": ("memetic population", [1, 0, 4.5, True, "8"]),
