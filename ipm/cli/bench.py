@@ -68,8 +68,9 @@ def register(app: typer.Typer) -> None:
             f"Versions: ipm {ipm.__version__}, torch {torch.__version__}, Python {platform.python_version()}", "",
             f"Protocol: DESIGN.md v2 (targets in the unit bounding sphere, inputs {exp.size} px, 16 held-out "
             f"views at {exp.heldout_size} px, camera distance {exp.distance:g}, predictions scored where the "
-            f"method placed them, K = 1 scaled about the eye; budget {exp.budget} evaluations, seeds "
-            f"{list(exp.seeds)}).", "",
+            f"method placed them, K = 1 scaled about the eye; budget {exp.budget} evaluations"
+            + "".join(f", {m.name} {m.budget}" for m in exp.methods if m.budget is not None)
+            + f", seeds {list(exp.seeds)}).", "",
             "Contact sheets (target, then each method's result from held-out view 1, as scored): "
             + (", ".join(f"[{p.name}]({p.name})" for p in sheets) or "none") + ".", "",
             *([exp.notes, ""] if exp.notes else []),
