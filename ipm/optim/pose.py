@@ -40,9 +40,10 @@ def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor,
     """``presets`` (x, discrete) best first by one cheap look each: rendered where the best start is, then
     rescaled and moved so that their silhouettes' areas and centroids match the target's (one more
     evaluation), the better of the two kept. A search that seeds its population with presets then
-    takes the ones that look like the target rather than the first few by name (a bottle target from
-    the ``mug`` preset: ``bottle`` and ``vase`` before ``plate``). Silhouette targets only; the order
-    is kept for others and when the budget ends."""
+    takes the ones that look like the target rather than the first few by name (a synthetic bottle
+    fitted from the ``mug`` preset: ``bottle`` first, loss 0.064, the others 0.24 to 0.68; alphabetically
+    the population of 8 never reached ``pitcher``, ``plate`` or ``vase``). Silhouette targets only; the
+    order is kept for others and when the budget ends."""
     from ipm.optim.encoding import encode_log2_scale, encode_translation
     from ipm.optim.evaluator import BudgetExhausted
 
