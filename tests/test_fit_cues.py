@@ -281,6 +281,7 @@ def test_photo_target_crops_and_scales_the_cleargrasp_mug():
                         intrinsics=str(folder / "camera_intrinsics.yaml"), size=96)
     target, ph = load_target(files, camera="fit")
     assert target.masks.shape == (1, 96, 96) and target.known_intrinsics
+    assert target.outside_is_background  # the mug is well inside the photo
     assert target.cues == ("depth", "image")
     # metres per scene unit: the mug's median depth sits at the protocol's distance
     d = ph.depth[ph.mask > 0.5]
@@ -319,6 +320,21 @@ def test_photo_and_depth_fit_the_real_mug(tmp_path, capsys):
     parts = scores["parts_px"]
     assert parts["handle"][0] > parts["body"][0] + 40  # right of the body, as in the photo
     assert (out / "overlay_photo.png").is_file()
+
+
+def test_outside_share_charges_geometry_outside_the_view_and_pulls_it_back():
+    from ipm.optim.problem import outside_share
+
+    cam = orbit_camera(0.0, 0.0, 3.0, fov_deg=40.0, width=64, height=48)
+    inside = torch.tensor([[0.0, 0.0, 0.0], [0.2, 0.1, 0.0]], dtype=torch.float64)
+    assert float(outside_share(inside, [cam])) == 0.0
+    far = torch.tensor([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0]], dtype=torch.float64, requires_grad=True)
+    share = outside_share(far, [cam])
+    xy, _ = project(far[1:].detach(), cam)
+    # one vertex of two, (x - width) pixels out, in image heights
+    assert float(share.detach()) == pytest.approx(float(xy[0, 0] - 64) / 48 / 2, rel=1e-9)
+    share.backward()
+    assert float(far.grad[1, 0]) > 0 and float(far.grad[0].abs().sum()) == 0.0  # descent moves it back in
 
 
 # -- bad inputs: one line, exit 2, nothing written --------------------------------------------------------

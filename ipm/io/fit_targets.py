@@ -309,10 +309,16 @@ def _photo_target(files: TargetFiles, device, dtype):
 
     target = MaskTarget(t(m), [cam.to(dtype=dtype, device=device)], depth=None if d_fit is None else t(d_fit),
                         image=t(grey), known_intrinsics=files.intrinsics is not None,
-                        ground_elevation=None if ground is None else ground.elevation_deg)
+                        ground_elevation=None if ground is None else ground.elevation_deg,
+                        outside_is_background=not _touches_edge(fg))
     log.info("photo %dx%d: fitting a %d px crop at (%d, %d) resampled to %d px%s", W, H, side, x0, y0, n,
              f", {unit:.4g} m per scene unit" if depth is not None else "")
     return target, photo
+
+
+def _touches_edge(fg: np.ndarray) -> bool:
+    """Whether the foreground reaches the photo's border (the object may go on beyond it)."""
+    return bool(fg[0].any() or fg[-1].any() or fg[:, 0].any() or fg[:, -1].any())
 
 
 def _ground(files: TargetFiles, depth: np.ndarray | None, mask: np.ndarray, intr) -> Plane | None:

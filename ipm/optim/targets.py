@@ -24,7 +24,9 @@ class MaskTarget:
     known_intrinsics: with ``camera="fit"``, the cameras' field of view and principal point are known
     (only the camera's elevation and distance are fitted);
     ground_elevation: with ``camera="fit"``, the camera's elevation in degrees where it is known (from the
-    plane the object stands on, :mod:`ipm.io.ground`): it is then held, not fitted.
+    plane the object stands on, :mod:`ipm.io.ground`): it is then held, not fitted;
+    outside_is_background: what projects outside the images is known to be background (a photo's crop
+    away from the photo's edges), and geometry there is charged (:func:`ipm.optim.problem.outside_share`).
     """
 
     masks: torch.Tensor
@@ -35,6 +37,7 @@ class MaskTarget:
     image: torch.Tensor | None = None
     known_intrinsics: bool = False
     ground_elevation: float | None = None
+    outside_is_background: bool = False
 
     @property
     def cues(self) -> tuple[str, ...]:
