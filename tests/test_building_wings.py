@@ -5,9 +5,7 @@ every new size equal to float64 central differences."""
 
 from __future__ import annotations
 
-import collections
 import hashlib
-import sys
 
 import numpy as np
 import pytest
@@ -15,12 +13,12 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_building import GEN, build, check_building, components, parts
-from torch.func import jacfwd
 
 from ipm.generators._roofs import ROOF_VERTS
 from ipm.generators.building import GROUPS, MAX_ROOF_BOXES, MAX_WINGS
 from ipm.jacobian import check_mesh_jacobian, mesh_jacobian
 from ipm.params import load_param_file, param_file_json
+from tests.test_meshgen_common import slow_path_hits
 
 # The generator before wings (commit b86de4d): its 21 continuous parameters in their order, and per
 # case (vertices, sha256 of faces and groups, sum of the vertices' coordinates weighted by random
@@ -299,19 +297,5 @@ def test_wing_sizes_move_only_their_wing():
 def test_jacfwd_with_wings_never_takes_torchs_slow_mixed_operand_path():
     """As tests/test_meshgen_common.py checks at the defaults: the wings' and boxes' code too."""
     theta, discrete = GEN.split(jacobian_case(3))
-    jacfwd(lambda t: GEN.mesh(t, discrete).verts.reshape(-1))(theta)     # warm-up: not traced
-    hits: collections.Counter = collections.Counter()
-
-    def tracer(frame, event, arg):
-        if event == "call" and frame.f_code.co_name == "_fn" and "_prims_common" in frame.f_code.co_filename:
-            caller = frame.f_back
-            if caller is not None and "/ipm/" in caller.f_code.co_filename:
-                hits[f"{caller.f_code.co_filename.split('/ipm/')[-1]}:{caller.f_lineno}"] += 1
-        return None
-
-    sys.setprofile(tracer)
-    try:
-        jacfwd(lambda t: GEN.mesh(t, discrete).verts.reshape(-1))(theta)
-    finally:
-        sys.setprofile(None)
+    hits = slow_path_hits(lambda t: GEN.mesh(t, discrete).verts.reshape(-1), theta)
     assert not hits, dict(hits)
