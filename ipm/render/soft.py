@@ -393,6 +393,7 @@ _NATIVE_INSTANCE = """
 #undef RUNS
 #undef EDGE
 #undef PAIR_GEOMETRY
+#undef FOR_TRIANGLE_RUNS
 #define REAL {real}
 #define NAME(x) x##_{suffix}
 #define EXP {exp}
@@ -642,24 +643,29 @@ static inline void NAME(bwd_vec)(const NAME(Edges) *E, REAL fx, REAL fy, int n, 
     }
 }
 
+/* for the triangle p in rows ja .. jb: its edges E, and for each vector of its row runs (row j, first
+   pixel i, run end b; rows of stride W + VEC) the statements given last (the forward and the backward
+   pass walk the same pixels) */
+#define FOR_TRIANGLE_RUNS(p, ja, jb, W, r, ...)                                                      \
+    NAME(Edges) E;                                                                                 \
+    NAME(edges_of)(p, &E);                                                                         \
+    NAME(Hull) Q;                                                                                  \
+    NAME(hull_of)(p, r, &Q);                                                                       \
+    int64_t i0[RUNS], i1[RUNS], stride = (W) + VEC;                                                \
+    for (int64_t jj = (ja); jj <= (jb); jj += RUNS) {                                              \
+        NAME(runs_of)(&Q, jj, r, W, i0, i1);                                                       \
+        for (int64_t j = jj; j <= (jb) && j < jj + RUNS; j++) {                                    \
+            int64_t a = i0[j - jj], b = i1[j - jj];                                                \
+            for (int64_t i = a; i <= b; i += VEC) { __VA_ARGS__ }                                  \
+        }                                                                                          \
+    }
+
 /* the rows ja .. jb of triangle p: S (rows of stride W + VEC) += log(1 - D) per pixel (with P) */
 static void NAME(fwd_rows)(const REAL *p, int64_t ja, int64_t jb, int W, double r, REAL r2, REAL inv_sigma,
                            REAL *S, REAL *P) {
-    NAME(Edges) E;
-    NAME(edges_of)(p, &E);
-    NAME(Hull) Q;
-    NAME(hull_of)(p, r, &Q);
-    int64_t i0[RUNS], i1[RUNS], stride = W + VEC;
-    for (int64_t jj = ja; jj <= jb; jj += RUNS) {
-        NAME(runs_of)(&Q, jj, r, W, i0, i1);
-        for (int64_t j = jj; j <= jb && j < jj + RUNS; j++) {
-            int64_t a = i0[j - jj], b = i1[j - jj];
-            REAL *row = S + j * stride, *prow = P + j * stride;
-            for (int64_t i = a; i <= b; i += VEC)
-                NAME(fwd_vec)(&E, (REAL)i + (REAL)0.5, (REAL)j + (REAL)0.5, (int)(b - i + 1), r2, inv_sigma,
-                              row + i, prow + i);
-        }
-    }
+    FOR_TRIANGLE_RUNS(p, ja, jb, W, r,
+        NAME(fwd_vec)(&E, (REAL)i + (REAL)0.5, (REAL)j + (REAL)0.5, (int)(b - i + 1), r2, inv_sigma,
+                      S + j * stride + i, P + j * stride + i);)
 }
 
 /* band rows ja .. jb: S = the sum of log(1 - D) over the triangles list[0 .. n - 1], sil = -expm1(S) */
@@ -797,21 +803,9 @@ static void NAME(bwd_tri)(const REAL *p, int64_t ja, int64_t jb, int W, double r
     REAL acc[6][VEC];
     memset(acc, 0, sizeof acc);
     if (ja <= jb) {
-        NAME(Edges) E;
-        NAME(edges_of)(p, &E);
-        NAME(Hull) Q;
-        NAME(hull_of)(p, r, &Q);
-        int64_t i0[RUNS], i1[RUNS], stride = W + VEC;
-        for (int64_t jj = ja; jj <= jb; jj += RUNS) {
-            NAME(runs_of)(&Q, jj, r, W, i0, i1);
-            for (int64_t j = jj; j <= jb && j < jj + RUNS; j++) {
-                int64_t a = i0[j - jj], b = i1[j - jj];
-                const REAL *row = gS + j * stride;
-                for (int64_t i = a; i <= b; i += VEC)
-                    NAME(bwd_vec)(&E, (REAL)i + (REAL)0.5, (REAL)j + (REAL)0.5, (int)(b - i + 1), r2, inv_sigma,
-                                  row + i, acc);
-            }
-        }
+        FOR_TRIANGLE_RUNS(p, ja, jb, W, r,
+            NAME(bwd_vec)(&E, (REAL)i + (REAL)0.5, (REAL)j + (REAL)0.5, (int)(b - i + 1), r2, inv_sigma,
+                          gS + j * stride + i, acc);)
     }
     for (int q = 0; q < 6; q++) {
         REAL s = 0;
