@@ -35,7 +35,8 @@ def _settings_from_json(d: dict):
     if not isinstance(d, dict):
         raise InputError(f"settings: expected an object, got {type(d).__name__}")
     known = {f.name for f in fields(FitSettings)}
-    d = {"part_cost": 0.0, **d}  # runs recorded before the description length replay without it
+    # runs recorded before the description length and the anchor replay without them
+    d = {"part_cost": 0.0, "anchor": 0.0, **d}
     return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
 
 

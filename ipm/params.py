@@ -45,6 +45,10 @@ class Param:
     # a discrete switch or count whose every unit adds a part of this name (a handle, a wing, a roof-top
     # box): a fit charges FitSettings.part_cost per unit, so a part stays only where it pays for itself
     adds: str | None = None
+    # a shape parameter one view hardly determines (an oval section's depth along the line of sight reads
+    # as the camera's elevation): single-view fits without depth charge FitSettings.anchor per unit of its normalized
+    # distance from the starting value, so it leaves the start only where the view pays for it
+    anchored: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("float", "int", "bool"):
@@ -94,6 +98,8 @@ class Param:
             out["per"] = self.per
         if self.adds:
             out["adds"] = self.adds
+        if self.anchored:
+            out["anchored"] = True
         return out
 
 

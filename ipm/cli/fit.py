@@ -64,6 +64,9 @@ def register(app: typer.Typer) -> None:
         part_cost: Annotated[float | None, typer.Option("--part-cost", help=(
             "loss added per part a discrete value adds (a handle, a wing): a part stays only where it "
             "lowers the loss by more (default 0)"))] = None,
+        anchor: Annotated[float | None, typer.Option(help=(
+            "single view without depth: loss per unit of normalized distance an anchored parameter (a vessel section's "
+            "aspect and squareness) moves from the start (default 0.02; 0 frees them)"))] = None,
         polish: Annotated[float | None, typer.Option(help=(
             "share of the budget for the final refinement of the best candidates with every parameter free "
             "(default 0.15; a photo's details: 0.4)"))] = None,
@@ -160,7 +163,8 @@ def register(app: typer.Typer) -> None:
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,
                          pose=not no_pose,
                          prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm),
-                         **{k: v for k, v in (("polish", polish), ("part_cost", part_cost)) if v is not None})
+                         **{k: v for k, v in (("polish", polish), ("part_cost", part_cost), ("anchor", anchor))
+                            if v is not None})
         finally:
             if started:
                 bar.stop()

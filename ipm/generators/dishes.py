@@ -135,8 +135,8 @@ def resolve_lod(lod: DishLod | Mapping | str | None) -> DishLod:
 # Parameters
 # ----------------------------------------------------------------------------------------------
 
-def _f(name, default, lo, hi, doc="", detail=False):
-    return Param(name, default, lo, hi, "float", doc, detail)
+def _f(name, default, lo, hi, doc="", detail=False, anchored=False):
+    return Param(name, default, lo, hi, "float", doc, detail, anchored=anchored)
 
 
 _OUT = (0.55, 0.9, 1.0, 0.9, 0.55)
@@ -159,9 +159,11 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
         _f("spout_width", 0.35, 0.1, 1.5, "angular width of the spout (radians)"),
         _f("spout_length", 0.2, 0.05, 0.6, "how far down the spout reaches (fraction of height)"),
         _f("section_squareness", 0.0, 0.0, 1.0,
-           "cross-section: 0 round, 1 a square with rounded corners (superellipse exponent 2 .. 10)"),
+           "cross-section: 0 round, 1 a square with rounded corners (superellipse exponent 2 .. 10)",
+           anchored=True),
         _f("section_aspect", 1.0, 0.4, 1.6,
-           "cross-section depth (along Z) over width (along X); the radius is their geometric mean"),
+           "cross-section depth (along Z) over width (along X); the radius is their geometric mean",
+           anchored=True),
     ]
     ps += [_f(f"wall_thicken_{i}", 0.0, -0.1, 0.5, f"extra wall thickness at height {i}/{n_radii - 1} of the wall",
               detail=True)

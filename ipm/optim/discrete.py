@@ -77,6 +77,8 @@ class MemeticSettings:
     min_diversity: Annotated[float, Meta(ge=0, extra={"noun": "a diversity"})] = 0.02
     neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value
     refine_elite: bool = True  # the elite is refined again in every generation (not only copied)
+    # the first population refined by successive halving on the same budget (discrete.halving)
+    halving: bool = True
 
 
 @dataclass(frozen=True)
@@ -125,3 +127,30 @@ def from_genome(space: Space, g: np.ndarray, pose_from: torch.Tensor) -> tuple[t
     x = pose_from.clone()
     x[torch.as_tensor(space.gen)] = torch.as_tensor(g[: len(space.gen)], dtype=torch.float64)
     return x, space.decode(g[len(space.gen):])
+
+
+def halving_rungs(n: int, keep: int = 1) -> int:
+    """How many rungs :func:`halving` runs for ``n`` candidates down to ``keep``: ceil(log2 (n / keep)) + 1."""
+    return math.ceil(math.log2(n / keep)) + 1 if n > keep else 1
+
+
+def halving(first: list[tuple[torch.Tensor, dict]], refine: Refine, steps: int,
+            keep: int = 1) -> list[tuple[torch.Tensor, dict, float]]:
+    """Successive halving (Jamieson and Talwalkar, AISTATS 2016): every candidate is refined ``steps``
+    steps, then the better half (by loss) twice as many, and so on until ``keep`` or fewer are left,
+    which are refined once more at their rung's steps; each rung costs about the same. Returns every
+    candidate ``(x, discrete, loss)`` in the order given, with its latest refinement (the dropped ones
+    keep theirs). :class:`~ipm.optim.evaluator.BudgetExhausted` from ``refine`` is passed on."""
+    pop = [(x, d, math.inf) for x, d in first]
+    alive = list(range(len(pop)))
+    k = steps
+    while alive:
+        for i in alive:
+            x, d, _ = pop[i]
+            xr, loss = refine(x, d, k)
+            pop[i] = (xr, d, loss)
+        if len(alive) <= keep:
+            break
+        alive = sorted(alive, key=lambda i: pop[i][2])[: max(keep, len(alive) // 2)]
+        k *= 2
+    return pop

@@ -154,6 +154,11 @@ class Problem:
         if isinstance(target, MaskTarget) and target.cues:
             self._check_cues(target)
         self.search_mask[detail] = 0
+        # anchored parameters (Param.anchored) of a single-view fit without depth (which measures what one
+        # silhouette confuses): charged their distance from the start
+        one_view = isinstance(target, MaskTarget) and target.masks.shape[0] == 1 and target.depth is None
+        self.anchored = [i for i, j in enumerate(self.free)
+                         if one_view and settings.anchor > 0 and by_name[cont[j]].anchored]
         self._frames: dict = {}
         self._target_sphere: tuple | None = None
         self.c0, self.L0 = self.frame(self.d0)
@@ -427,6 +432,9 @@ class Problem:
                 loss = self._mesh_loss(x, discrete)
             if self.s.prior_weight > 0:
                 loss = loss + self.s.prior_weight * L.prior_loss(x[: self.n], self.u_ref.to(x.dtype))
+            if self.anchored:
+                a = self.anchored
+                loss = loss + self.s.anchor * (x[a] - self.u_ref[a].to(x)).abs().sum()
             loss = loss + self.part_cost(discrete)
             grad = None
             if need_grad:

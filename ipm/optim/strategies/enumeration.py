@@ -9,7 +9,7 @@ import math
 import numpy as np
 
 from ipm.errors import InputError
-from ipm.optim.discrete import Refine, Space, best_pose, outlined
+from ipm.optim.discrete import Refine, Space, best_pose, halving, halving_rungs, outlined
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
 from ipm.optim.strategies import STRATEGIES
 
@@ -39,28 +39,16 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
         alive = []
         for c in combos:
             d = {**space.fixed_discrete, **c}
-            alive.append((outlined(space, best_pose(ev, space, x0, d), d), d, math.inf))
+            alive.append((outlined(space, best_pose(ev, space, x0, d), d), d))
     except BudgetExhausted:
         return
     # successive halving spends about steps0 * len(combos) per round, over log2(len) + 1 rounds
-    rounds = math.ceil(math.log2(len(combos))) + 1 if len(combos) > 1 else 1
-    steps = steps0 or max(5, ev.remaining // (len(combos) * rounds))
-    rnd = 0
+    steps = steps0 or max(5, ev.remaining // (len(combos) * halving_rungs(len(combos))))
+    ev.phase = "enumerate:halving"
     try:
-        while alive:
-            rnd += 1
-            ev.phase = f"enumerate:round{rnd}"
-            refined = []
-            for x, d, _ in alive:
-                xr, loss = refine(x, d, steps)
-                refined.append((xr, d, loss))
-            alive = sorted(refined, key=lambda a: a[2])
-            if len(alive) == 1:
-                # the winner gets what is left
-                refine(alive[0][0], alive[0][1], ev.remaining)
-                return
-            alive = alive[: max(1, len(alive) // 2)]
-            steps *= 2
+        refined = halving(alive, refine, steps)
+        x, d, _ = min(refined, key=lambda a: a[2])
+        refine(x, d, ev.remaining)  # the winner gets what is left
     except BudgetExhausted:
         return
 

@@ -1,0 +1,63 @@
+"""Successive halving (ipm.optim.discrete.halving): the memetic search's first population and enumerate."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from ipm.optim.discrete import halving, halving_rungs
+from ipm.optim.evaluator import BudgetExhausted
+
+
+class FakeRefine:
+    """Candidate i's loss after s steps in total is floor[i] + 1 / (1 + s): each keeps its rank, and the
+    steps each was given are recorded."""
+
+    def __init__(self, floors, budget=None):
+        self.floors, self.budget = floors, budget
+        self.steps = [0] * len(floors)
+        self.calls: list[tuple[int, int]] = []
+
+    def __call__(self, x, d, k):
+        i = d["i"]
+        if self.budget is not None and sum(self.steps) + k > self.budget:
+            raise BudgetExhausted
+        self.steps[i] += k
+        self.calls.append((i, k))
+        return x + k, self.floors[i] + 1.0 / (1 + self.steps[i])
+
+
+def _first(n):
+    return [(torch.zeros(2), {"i": i}) for i in range(n)]
+
+
+def test_halving_gives_the_best_the_most_steps_on_the_same_budget():
+    floors = [0.5, 0.1, 0.9, 0.3, 0.7, 0.2, 0.8, 0.4]
+    f = FakeRefine(floors)
+    assert halving_rungs(8) == 4
+    pop = halving(_first(8), f, 12)
+    # rungs of 8, 4, 2 and 1 candidates, each costing 8 x 12 steps
+    assert [k for _, k in f.calls] == [12] * 8 + [24] * 4 + [48] * 2 + [96]
+    # the survivors of each rung are the better half: 1, 5, 3, 7 (floors 0.1, 0.2, 0.3, 0.4), then 1, 5, then 1
+    assert [i for i, k in f.calls if k == 24] == [1, 5, 3, 7]
+    assert [i for i, k in f.calls if k == 48] == [1, 5]
+    assert f.steps[1] == 12 + 24 + 48 + 96 and f.steps[0] == 12
+    # every candidate comes back with its latest refinement and loss, in the order given
+    assert [d["i"] for _, d, _ in pop] == list(range(8))
+    for i, (x, _, loss) in enumerate(pop):
+        assert loss == pytest.approx(floors[i] + 1.0 / (1 + f.steps[i]))
+        assert float(x[0]) == f.steps[i]
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 6])
+def test_halving_any_number_of_candidates_stays_within_its_rungs(n):
+    f = FakeRefine([0.1 * i for i in range(n)])
+    halving(_first(n), f, 10)
+    assert 0 < sum(f.steps) <= n * 10 * halving_rungs(n)
+    assert f.steps[0] == max(f.steps)  # the best candidate got the most
+
+
+def test_halving_passes_an_exhausted_budget_on():
+    f = FakeRefine([0.1 * i for i in range(8)], budget=100)
+    with pytest.raises(BudgetExhausted):
+        halving(_first(8), f, 50)
