@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -61,3 +62,30 @@ def test_halving_passes_an_exhausted_budget_on():
     f = FakeRefine([0.1 * i for i in range(8)], budget=100)
     with pytest.raises(BudgetExhausted):
         halving(_first(8), f, 50)
+
+
+def test_best_pose_keeps_a_candidates_own_pose_when_it_fits_best():
+    """A preset comes posed by rank_presets (area and centroid matched): best_pose tries that pose too,
+    not only the kept starts' (building_2 from block_stair: 0.33 after 12 steps from a start's pose)."""
+    from ipm.optim.discrete import Space, best_pose
+
+    gen = np.array([0, 1])  # generator coordinates; 2, 3 are the pose
+    starts = [(torch.tensor([0.5, 0.5, 0.1, 0.1], dtype=torch.float64), {}),
+              (torch.tensor([0.5, 0.5, 0.9, 0.9], dtype=torch.float64), {})]
+    space = Space(4, gen, [], starts)
+    seen = []
+
+    def ev(x, d, grad=False):  # the loss is the pose's distance from (0.6, 0.6)
+        seen.append(x.clone())
+        return float(((x[2:] - 0.6) ** 2).sum()), None
+
+    own = torch.tensor([0.2, 0.3, 0.6, 0.6], dtype=torch.float64)
+    got = best_pose(ev, space, own, {})
+    assert torch.equal(got, own) and len(seen) == 3
+    far = torch.tensor([0.2, 0.3, 0.0, 0.0], dtype=torch.float64)
+    got = best_pose(ev, space, far, {})
+    assert torch.equal(got, torch.tensor([0.2, 0.3, 0.9, 0.9], dtype=torch.float64))
+    # a candidate already in a start's pose is evaluated once in it
+    seen.clear()
+    best_pose(ev, space, torch.tensor([0.2, 0.3, 0.1, 0.1], dtype=torch.float64), {})
+    assert len(seen) == 2
