@@ -65,8 +65,8 @@ def register(app: typer.Typer) -> None:
             "loss added per part a discrete value adds (a handle, a wing): a part stays only where it "
             "lowers the loss by more (default 0)"))] = None,
         anchor: Annotated[float | None, typer.Option(help=(
-            "single view without depth: loss per unit of normalized distance an anchored parameter (a vessel section's "
-            "aspect and squareness) moves from the start (default 0.02; 0 frees them)"))] = None,
+            "single view without depth: loss per unit of normalized distance an anchored parameter (a "
+            "vessel section's aspect and squareness) moves from the start (default 0.02; 0 frees them)"))] = None,
         polish: Annotated[float | None, typer.Option(help=(
             "share of the budget for the final refinement of the best candidates with every parameter free "
             "(default 0.15; a photo's details: 0.4)"))] = None,

@@ -95,9 +95,8 @@ def best_pose(ev: Evaluator, space: Space, x: torch.Tensor, d: dict) -> torch.Te
     prefer another of the kept poses, so each is tried once (one evaluation, no gradient), as is ``x``'s
     own pose: a preset comes matched to the target by :func:`ipm.optim.pose.rank_presets` (the public
     building_2 from ``block_stair``: soft-IoU loss 0.40 after 12 steps from a kept start's pose, 0.086
-    from its own). Where the
-    starts' poses were all alike for the starting values (``space.pose_search``), the pose grid is
-    ranked again for ``d`` instead."""
+    from its own). Where the starts' poses were all alike for the starting values
+    (``space.pose_search``), the pose grid is ranked again for ``d`` instead."""
     if space.pose_search is not None and d != space.starts[0][1]:
         return space.pose_search(x, d)
     if len(space.starts) < 2:

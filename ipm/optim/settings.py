@@ -70,8 +70,8 @@ class FitSettings:
     # description length: added to the loss per part a discrete value adds (Param.adds: a handle, a wing,
     # a roof-top box), so that a part stays only where it lowers the loss by more (PART_COST)
     part_cost: Annotated[float, Meta(ge=0, extra={"noun": "a loss per part"})] = PART_COST
-    # single-view fits: loss per unit of normalized distance (L1) of an anchored parameter (Param.anchored:
-    # an oval or square section's aspect and squareness) from its starting value (ANCHOR)
+    # single-view fits without depth: loss per unit of normalized distance (L1) of an anchored parameter
+    # (Param.anchored: an oval or square section's aspect and squareness) from its starting value (ANCHOR)
     anchor: Annotated[float, Meta(ge=0, extra={"noun": "a loss per unit"})] = ANCHOR
     # weights of the cues beyond silhouettes (used where the target has them; ipm.losses.cues)
     depth_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0

@@ -97,8 +97,9 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
             # refine_steps x population / rungs steps instead of refine_steps
             pop = halving(first, refine, max(1, round(s.refine_steps / halving_rungs(len(first)))))
         else:
-            pop = [(*refine(x, d, s.refine_steps), d) for x, d in first]
-            pop = [(x, d, loss) for x, loss, d in pop]
+            for x, d in first:
+                xr, loss = refine(x, d, s.refine_steps)
+                pop.append((xr, d, loss))
         best = min(p[2] for p in pop)
         stall, generation = 0, 0
         while True:
