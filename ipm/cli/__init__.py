@@ -22,7 +22,7 @@ from typing import Annotated
 import typer
 
 # Command modules, in the order of `ipm --help`.
-COMMANDS = ["list_cmd", "generate", "jacobian", "render", "mask", "fit", "convert", "bench"]
+COMMANDS = ["list_cmd", "generate", "jacobian", "render", "mask", "fit", "convert", "subdivide", "bench"]
 
 app = typer.Typer(
     name="ipm",

@@ -61,6 +61,9 @@ def register(app: typer.Typer) -> None:
         mode: Annotated[str, typer.Option(help="auto (the generator's own structured Jacobian when it "
                                                 "has one, else forward mode), fwd or rev")] = "auto",
         lod: Annotated[str | None, typer.Option(help="level of detail (mesh generators)")] = None,
+        subdivide: Annotated[str | None, typer.Option(help="mesh generators: the Jacobian of the mesh subdivided "
+                                                           "by this scheme (loop or midpoint): S J")] = None,
+        levels: Annotated[int, typer.Option(help="with --subdivide: how many levels, 1 to 6")] = 1,
         check: Annotated[bool, typer.Option(help="compare with float64 central differences")] = False,
         dtype: Annotated[str, typer.Option(help="float32 or float64")] = "float64",
         device: DeviceOpt = "auto",
@@ -88,9 +91,21 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--dtype: expected float32 or float64, got {dtype!r}")
         if points is None and n_points < 1:
             raise UsageError(f"--n-points: expected a positive count, got {n_points}")
+        if subdivide is not None:
+            from ipm.errors import InputError
+            from ipm.subdiv import SCHEMES, check_levels
+
+            if subdivide not in SCHEMES.names():
+                raise UsageError(f"--subdivide: expected one of {', '.join(SCHEMES.names())}, got {subdivide!r}")
+            try:
+                check_levels(levels)
+            except InputError as e:
+                raise UsageError(f"--{e}") from None
         dev = resolve_device(device)
         dt = getattr(torch, dtype)
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
+        if subdivide is not None and g.kind != "mesh":
+            raise UsageError(f"--subdivide: applies to mesh generators; {gen} is an SDF generator")
         values = resolve_params(g, preset, params, set_, random, seed)
         theta, discrete = g.split(values, dt, dev)
         names = [p.name for p in g.spec.continuous]
@@ -133,11 +148,30 @@ def register(app: typer.Typer) -> None:
                 def jac(th):
                     return mesh_jacobian(f, th, mode)
 
-            J = jac(theta)
             mesh = g.mesh(theta, discrete, lod)
-            out.update(verts=mesh.verts.detach().cpu().numpy(), faces=mesh.faces.cpu().numpy())
+            if subdivide is not None:
+                # the subdivided mesh is S V(theta) with S fixed by the faces: its Jacobian is S J
+                from ipm.subdiv import SCHEMES
+
+                op, sub_faces = SCHEMES.get(subdivide).operator(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
+                coarse_f, coarse_jac = f, jac
+
+                def f(th):
+                    return op(coarse_f(th))
+
+                def jac(th):
+                    J0 = coarse_jac(th)
+                    return op(J0.reshape(J0.shape[0] // 3, -1)).reshape(-1, J0.shape[1])
+
+                verts, faces = f(theta), sub_faces
+            else:
+                verts, faces = mesh.verts, mesh.faces.cpu().numpy()
+            J = jac(theta)
+            out.update(verts=verts.detach().cpu().numpy(), faces=faces)
             result = {"kind": "mesh", "shape": list(J.shape),
                       "method": "structured" if mode == "auto" and own is not None else mode}
+            if subdivide is not None:
+                result["subdivided"] = f"{subdivide} x{levels}"
             if check:
                 chk = check_mesh_jacobian(f, theta, jac(theta.double()))
         out.update(J=J.detach().cpu().numpy(), theta=theta.cpu().numpy(), names=np.array(names))

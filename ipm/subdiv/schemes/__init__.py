@@ -1,0 +1,1 @@
+"""Subdivision schemes, one module each, registered in :data:`ipm.subdiv.SCHEMES`."""
