@@ -55,6 +55,9 @@ table-synthetic: $(STAMP) ## generator samples with known parameters, results/ta
 table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside the K = 1 fits, results/table_coverage/
 	$(call run_bench,table_coverage,table_coverage)
 
+weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the package (about a minute on 2 cores)
+	$(BIN)/ipm train-subdivision -o ipm/subdiv/weights/neural_dishes.npz --pairs 32 --steps 1500 --seed 0
+
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
@@ -64,4 +67,4 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage bench-ambiguity table-convert clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-convert clean

@@ -155,7 +155,7 @@ def test_cli_subdivides_an_stl_after_welding(tmp_path, capsys):
 @pytest.mark.parametrize("args, message", [
     (["--levels", "0"], "--levels: expected an integer from 1 to 6, got 0"),
     (["--levels", "7"], "--levels: expected an integer from 1 to 6, got 7"),
-    (["--method", "butterfly"], "--method: expected one of loop, midpoint, got 'butterfly'"),
+    (["--method", "butterfly"], "--method: expected one of loop, midpoint, neural, got 'butterfly'"),
 ])
 def test_cli_bad_options_exit_2_with_one_line(tmp_path, capsys, args, message):
     V, F = _sphere(0)

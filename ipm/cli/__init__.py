@@ -22,7 +22,8 @@ from typing import Annotated
 import typer
 
 # Command modules, in the order of `ipm --help`.
-COMMANDS = ["list_cmd", "generate", "jacobian", "render", "mask", "fit", "convert", "subdivide", "bench"]
+COMMANDS = ["list_cmd", "generate", "jacobian", "render", "mask", "fit", "convert", "subdivide", "train_subdivision",
+            "bench"]
 
 app = typer.Typer(
     name="ipm",

@@ -23,13 +23,16 @@ def register(app: typer.Typer) -> None:
     def subdivide(
         mesh: Annotated[Path, typer.Argument(help="mesh file (.ply, .obj, .stl, .glb, .off)")],
         output: Annotated[Path, typer.Option("-o", "--output", help="subdivided mesh (.obj, .ply, .stl or .glb)")],
-        method: Annotated[str, typer.Option(help="loop (smooth, Loop 1987) or midpoint (edges split at their "
-                                                 "midpoints; the surface does not move)")] = "loop",
+        method: Annotated[str, typer.Option(help="loop (smooth, Loop 1987), midpoint (edges split at their "
+                                                 "midpoints; the surface does not move) or neural (half-flap "
+                                                 "MLPs, Liu et al. 2020; closed meshes)")] = "loop",
         levels: Annotated[int, typer.Option(help="how many times, 1 to 6 (each multiplies the triangles "
                                                  "by 4)")] = 1,
+        weights: Annotated[Path | None, typer.Option(help="neural: a weights file (.npz, from ipm "
+                                                          "train-subdivision); default: the shipped one")] = None,
         json_out: JsonOpt = False,
     ) -> None:
-        """Subdivide a triangle mesh (Loop or midpoint), differentiable in ipm.subdiv."""
+        """Subdivide a triangle mesh (Loop, midpoint or neural), differentiable in ipm.subdiv."""
         import numpy as np
         import torch
 
@@ -46,6 +49,13 @@ def register(app: typer.Typer) -> None:
             check_levels(levels)
         except InputError as e:
             raise UsageError(f"--{e}") from None
+        scheme = SCHEMES.get(method)
+        if weights is not None:
+            if method != "neural":
+                raise UsageError(f"--weights applies to --method neural, not {method}")
+            scheme = scheme.with_weights(weights)
+        if method == "neural":
+            scheme.network()  # a bad weights file is refused before the mesh is read
         src = load_mesh(mesh, up="y", normalize=False)
         V = src.verts.numpy()
         welded, inverse = np.unique(V, axis=0, return_inverse=True)
@@ -60,7 +70,8 @@ def register(app: typer.Typer) -> None:
         F, welded = remap[F], welded[used]
         t0 = time.perf_counter()
         try:
-            nv, nf = SCHEMES.get(method).subdivide(torch.as_tensor(welded), F, levels)
+            with torch.no_grad():
+                nv, nf = scheme.subdivide(torch.as_tensor(welded), F, levels)
         except InputError as e:
             raise UsageError(f"{mesh}: {e}") from None
         seconds = time.perf_counter() - t0

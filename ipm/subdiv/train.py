@@ -1,0 +1,137 @@
+"""Training neural subdivision on procedural pairs (:mod:`ipm.subdiv.pairs`): the paper's loss, the
+squared distance of every level's vertices to their exact positions (summed over levels), divided by
+the coarse mesh's mean squared edge length so that every pair weighs alike; Adam with a cosine
+schedule; one pair per step, in an order fixed by the seed. Checkpoints hold the weights, Adam's state
+and the step, so a resumed run continues exactly where it stopped."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ipm.errors import InputError
+from ipm.subdiv.neural import NetConfig, NeuralSubdivision, load_weights, save_weights
+from ipm.subdiv.pairs import Pair, dish_pair, random_dishes
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    pairs: int = 32          # training dishes
+    steps: int = 1500
+    lr: float = 2e-3
+    levels: int = 2
+    seed: int = 0
+    features: int = 16
+    hidden: int = 64
+
+    def check(self) -> None:
+        for name, lo, hi in (("pairs", 1, 100_000), ("steps", 1, 10_000_000), ("levels", 1, 3),
+                             ("features", 1, 1024), ("hidden", 1, 4096)):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                raise InputError(f"{name}: expected an integer from {lo} to {hi}, got {v!r}")
+        if not (isinstance(self.lr, float | int) and 0 < self.lr <= 1):
+            raise InputError(f"lr: expected a learning rate in (0, 1], got {self.lr!r}")
+
+
+def make_pairs(n: int, levels: int, seed: int) -> list[Pair]:
+    """``n`` procedural pairs (float32) from dishes presets moved by the seed's random numbers."""
+    return [dish_pair(v, levels, torch.float32) for v in random_dishes(n, np.random.default_rng(seed))]
+
+
+def pair_loss(net: NeuralSubdivision, pair: Pair) -> torch.Tensor:
+    out, _ = net(pair.verts, pair.faces, len(pair.levels))
+    e = pair.verts[pair.faces[:, [0, 1]]]
+    scale = ((e[:, 0] - e[:, 1]) ** 2).sum(-1).mean()
+    return sum(((o - g) ** 2).sum(-1).mean() for o, g in zip(out, pair.levels)) / scale
+
+
+def train(s: TrainSettings, *, checkpoint: str | Path | None = None, every: int = 100, resume: bool = False,
+          progress: Callable[[int, float], None] | None = None) -> NeuralSubdivision:
+    """Train from scratch (or from ``checkpoint`` with ``resume``); the checkpoint is rewritten every
+    ``every`` steps and at the end. Returns the network (float32)."""
+    s.check()
+    torch.manual_seed(s.seed)
+    net = NeuralSubdivision(NetConfig(s.features, s.hidden))
+    opt = torch.optim.Adam(net.parameters(), lr=s.lr)
+    start = 0
+    if resume:
+        if checkpoint is None or not Path(checkpoint).is_file():
+            raise InputError(f"resume: expected an existing checkpoint, got {checkpoint}")
+        net, extra = load_weights(checkpoint)
+        saved = json_settings(extra)
+        if saved != asdict(s):
+            diff = sorted(k for k in saved.keys() | asdict(s).keys() if saved.get(k) != asdict(s).get(k))
+            raise InputError(f"resume: the checkpoint was trained with other settings ({', '.join(diff)}); "
+                             "start a new run instead")
+        opt = torch.optim.Adam(net.parameters(), lr=s.lr)
+        _load_adam(opt, net, extra)
+        start = int(extra["step"])
+    pairs = make_pairs(s.pairs, s.levels, s.seed)
+    order = np.random.default_rng(s.seed).permutation(np.arange(s.steps) % s.pairs)
+    for step in range(start, s.steps):
+        for g in opt.param_groups:   # cosine from lr to lr / 20
+            g["lr"] = s.lr * (0.05 + 0.475 * (1 + math.cos(math.pi * step / max(s.steps - 1, 1))))
+        opt.zero_grad()
+        loss = pair_loss(net, pairs[order[step]])
+        loss.backward()
+        opt.step()
+        if progress is not None:
+            progress(step + 1, float(loss.detach()))
+        if checkpoint is not None and ((step + 1) % every == 0 or step + 1 == s.steps):
+            save_checkpoint(net, opt, s, step + 1, checkpoint)
+    return net
+
+
+def json_settings(extra: dict) -> dict:
+    import json
+
+    raw = extra.get("settings")
+    if raw is None:
+        raise InputError("resume: the file holds weights without training settings (not a checkpoint)")
+    return json.loads(str(raw))
+
+
+def save_checkpoint(net: NeuralSubdivision, opt: torch.optim.Adam, s: TrainSettings, step: int,
+                    path: str | Path) -> Path:
+    import json
+
+    extra: dict = {"step": np.array(step), "settings": np.array(json.dumps(asdict(s)))}
+    names = dict(net.named_parameters())
+    for k, p in names.items():
+        st = opt.state.get(p)
+        if st:
+            extra[f"adam.m.{k}"] = st["exp_avg"].detach().numpy()
+            extra[f"adam.v.{k}"] = st["exp_avg_sq"].detach().numpy()
+            extra[f"adam.t.{k}"] = np.array(float(st["step"]))
+    return save_weights(net, path, extra)
+
+
+def _load_adam(opt: torch.optim.Adam, net: NeuralSubdivision, extra: dict) -> None:
+    for k, p in net.named_parameters():
+        if f"adam.m.{k}" in extra:
+            opt.state[p] = {"step": torch.tensor(float(extra[f"adam.t.{k}"])),
+                            "exp_avg": torch.as_tensor(extra[f"adam.m.{k}"]).clone(),
+                            "exp_avg_sq": torch.as_tensor(extra[f"adam.v.{k}"]).clone()}
+
+
+def evaluate(net: NeuralSubdivision, pairs: list[Pair]) -> dict[str, float]:
+    """Mean distance of the last level's vertices to their exact positions, for the network, midpoint and
+    Loop subdivision, over ``pairs``."""
+    from ipm.subdiv import subdivide
+
+    out: dict[str, list[float]] = {"neural": [], "midpoint": [], "loop": []}
+    with torch.no_grad():
+        for p in pairs:
+            L = len(p.levels)
+            pred = {"neural": net(p.verts, p.faces, L)[0][-1],
+                    "midpoint": subdivide(p.verts, p.faces, "midpoint", L)[0],
+                    "loop": subdivide(p.verts, p.faces, "loop", L)[0]}
+            for k, v in pred.items():
+                out[k].append(float((v - p.levels[-1]).norm(dim=1).mean()))
+    return {k: float(np.mean(v)) for k, v in out.items()}
