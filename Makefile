@@ -61,10 +61,13 @@ weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the packa
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
+table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 2 minutes)
+	$(BIN)/python -m benchmarks.table_subdiv results/table_subdiv
+
 table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
 	$(BIN)/python -m benchmarks.table_convert results/table_convert
 
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-convert clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-convert clean
