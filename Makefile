@@ -64,10 +64,13 @@ bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? re
 table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 2 minutes)
 	$(BIN)/python -m benchmarks.table_subdiv results/table_subdiv
 
+table-subdiv-fit: $(STAMP) ## fits rendering a subdivided coarse level of detail against finer ones (real mug), results/subdiv_fit/
+	$(call run_bench,subdiv_fit,subdiv_fit)
+
 table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
 	$(BIN)/python -m benchmarks.table_convert results/table_convert
 
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-convert clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-subdiv-fit table-convert clean

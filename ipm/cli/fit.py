@@ -67,6 +67,11 @@ def register(app: typer.Typer) -> None:
         anchor: Annotated[float | None, typer.Option(help=(
             "single view without depth: loss per unit of normalized distance an anchored parameter (a "
             "vessel section's aspect and squareness) moves from the start (default 0.02; 0 frees them)"))] = None,
+        subdivide: Annotated[str | None, typer.Option(help=(
+            "mesh generators: render the generator's mesh subdivided by loop, midpoint or neural instead of "
+            "as it is (pair with --lod low)"))] = None,
+        subdivide_levels: Annotated[int, typer.Option("--subdivide-levels", help="levels of --subdivide (1-3)")] = 1,
+        lod: Annotated[str | None, typer.Option(help="mesh generators: level of detail (low, medium, high)")] = None,
         polish: Annotated[float | None, typer.Option(help=(
             "share of the budget for the final refinement of the best candidates with every parameter free "
             "(default 0.15; a photo's details: 0.4)"))] = None,
@@ -163,6 +168,7 @@ def register(app: typer.Typer) -> None:
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,
                          pose=not no_pose,
                          prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm),
+                         subdivide=subdivide, subdivide_levels=subdivide_levels, lod=lod,
                          **{k: v for k, v in (("polish", polish), ("part_cost", part_cost), ("anchor", anchor))
                             if v is not None})
         finally:

@@ -127,6 +127,8 @@ class Problem:
         if pre_check is not None and self.searched:
             pre_check(self.searched)
         self.d0 = self.clamp_discrete(self.d0)
+        if settings.subdivide is not None and gen.kind != "mesh":
+            raise InputError(f"subdivision: applies to mesh generators; {gen.name} is an SDF generator")
         self.cam_fit = isinstance(target, MaskTarget) and settings.camera == "fit"
         self.layout = E.Layout(self.lo, self.hi, tuple(self.free), self.cam_fit)
         self.m = self.layout.m
@@ -329,10 +331,22 @@ class Problem:
         theta = self.carry(theta, d)
         if self.gen.kind == "mesh":
             m = self.gen.mesh(theta.to(self.dtype), d, self.s.lod)
+            if self.s.subdivide is not None:
+                m = self._subdivided(m)
         else:
             values = self.gen.spec.from_vector(theta.detach().double(), d)
             m = self.gen.to_mesh(values, resolution=self.s.resolution)
         return TriMesh(self._to_world(m.verts.to(self.dtype), t, yaw, scale, d), m.faces, m.groups, m.group_names)
+
+    def _subdivided(self, m: TriMesh) -> TriMesh:
+        """``m`` subdivided as the settings say (``FitSettings.subdivide``); every face's four children
+        keep its group (libigl numbers them four by four)."""
+        from ipm.subdiv import SCHEMES
+
+        levels = self.s.subdivide_levels
+        v, f = SCHEMES.get(self.s.subdivide).subdivide(m.verts, m.faces.cpu().numpy(), levels)
+        groups = None if m.groups is None else m.groups.repeat_interleave(4 ** levels)
+        return TriMesh(v, torch.as_tensor(f, device=m.faces.device), groups, m.group_names)
 
     def sdf_world(self, x: torch.Tensor, discrete: dict):
         """(f(points) -> distances in the world frame, lo (3,), hi (3,)) for SDF generators."""

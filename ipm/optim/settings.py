@@ -64,6 +64,10 @@ class FitSettings:
     polish: Annotated[float, Meta(ge=0, le=1, extra={"noun": "a share of the budget"})] = POLISH_SHARE
     coarse_to_fine: bool = True      # silhouettes: hold the generator's detail parameters during the search
     lod: Any = None
+    # mesh generators: render the mesh at ``lod`` subdivided ``subdivide_levels`` times by this scheme of
+    # ipm.subdiv.SCHEMES (loop, midpoint, neural), instead of a finer level of detail; None: as it is
+    subdivide: str | None = None
+    subdivide_levels: Annotated[int, Meta(ge=1, le=3, extra={"noun": "a number of levels"})] = 1
     # SDF generators: meshing of the result
     resolution: Annotated[int, Meta(ge=8, extra={"noun": "a meshing resolution"})] = 128
     ties: bool = True                # discrete values the input cannot tell apart go to the preset's (break_ties)
@@ -96,6 +100,10 @@ class FitSettings:
         _one_of(self.discrete, "discrete search", STRATEGIES.names())
         _one_of(self.loss, "loss", L.LOSSES.names())
         _one_of(self.local, "local optimizer", G.LOCAL)
+        if self.subdivide is not None:
+            from ipm.subdiv import SCHEMES
+
+            _one_of(self.subdivide, "subdivision", SCHEMES.names())
         data = _plain(self)
         try:
             msgspec.convert(data, FitSettings)
@@ -114,7 +122,8 @@ class FitSettings:
 
 
 # how the fields are named in messages (others: by their name; nested ones after their parent's)
-_LABELS = {"discrete": "discrete search", "local": "local optimizer", "prior_weight": "prior weight"}
+_LABELS = {"discrete": "discrete search", "local": "local optimizer", "prior_weight": "prior weight",
+           "subdivide_levels": "subdivision levels"}
 
 
 def _plain(v):
