@@ -90,11 +90,13 @@ class LinearScheme:
 
     def operator(self, faces: np.ndarray, n_verts: int, levels: int) -> tuple[SparseOperator, np.ndarray]:
         """The checked mesh's composed operator ``S (V_L, V)`` and its faces after ``levels`` levels."""
-        F = check_mesh(faces, n_verts, self, levels)
-        key = (n_verts, levels, F.shape, F.tobytes())
+        check_levels(levels)
+        F = np.ascontiguousarray(faces)
+        key = (n_verts, levels, F.shape, F.dtype.str, F.tobytes())
         hit = self._cache.get(key)
-        if hit is not None:
+        if hit is not None:  # checked when it was made (the check costs more than the product)
             return hit
+        F = check_mesh(F, n_verts, self, levels)
         S, n = sp.identity(n_verts, format="csr"), n_verts
         for _ in range(levels):
             Si, F = self.matrix(F, n)

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 
 from ipm.subdiv import SCHEMES
-from ipm.subdiv.linear import check_mesh
+from ipm.subdiv.linear import check_levels, check_mesh
 
 WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "neural_dishes.npz"
 
@@ -23,6 +23,7 @@ class NeuralScheme:
     boundary: bool = False
     weights: Path = WEIGHTS
     _net: object = field(default=None, repr=False)
+    _checked: set = field(default_factory=set, repr=False)
 
     def with_weights(self, path: str | Path) -> NeuralScheme:
         """The scheme with the network of another weights file (checked when loaded)."""
@@ -36,7 +37,15 @@ class NeuralScheme:
         return self._net
 
     def subdivide(self, verts: torch.Tensor, faces: np.ndarray, levels: int) -> tuple[torch.Tensor, np.ndarray]:
-        F = check_mesh(faces, verts.shape[0], self, levels)
+        check_levels(levels)
+        F = np.ascontiguousarray(faces)
+        key = (verts.shape[0], levels, F.shape, F.dtype.str, F.tobytes())
+        if key not in self._checked:  # a fit renders the same faces again: check them once
+            F = check_mesh(F, verts.shape[0], self, levels)
+            if len(self._checked) >= 16:
+                self._checked.clear()
+            self._checked.add(key)
+        F = F.astype(np.int64, copy=False)
         net = self.network()
         out, NF = net.to(verts.device)(verts, F, levels)
         return out[-1], NF
