@@ -4,7 +4,11 @@ threads; the building of the composed sparse operator (libigl's matrices, once p
 
 The mesh: a torus from trimesh (a genus-1 closed surface, 16,384 vertices), so that the count is exact.
 Then neural subdivision's inference, two levels, of the 502-vertex real bottle scan
-(``../shared/data/real/vessels/trimesh_fuze_bottle.obj``, welded) with the shipped weights, float32."""
+(``../shared/data/real/vessels/trimesh_fuze_bottle.obj``, welded) with the shipped weights, float32.
+Then one evaluation (loss and gradient) of the real-mug fit of ``experiments/subdiv_fit.toml`` (the
+ocrtoc mug, the protocol's first view at 256 px, the dishes mug preset) for each way of making its mesh:
+the medium and high levels of detail as they are, the low one as it is and subdivided once by Loop and
+by neural subdivision; the configurations interleaved, best of 7 each, one thread."""
 
 from __future__ import annotations
 
@@ -60,6 +64,43 @@ def _neural_rows() -> list[dict]:
     return rows
 
 
+FIT_CONFIGS = {"medium": {}, "high": {"lod": "high"}, "low": {"lod": "low"},
+               "low+loop": {"lod": "low", "subdivide": "loop"}, "low+neural": {"lod": "low", "subdivide": "neural"}}
+
+
+def _fit_rows() -> list[dict]:
+    from ipm.generators import get_generator
+    from ipm.io.meshes import load_mesh
+    from ipm.optim.fit import FitSettings, MaskTarget
+    from ipm.optim.problem import Problem
+    from ipm.render.camera import input_views
+    from ipm.render.raster import rasterize_mesh
+
+    path = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply"
+    mug = load_mesh(path, up="z", normalize=True)
+    cams = input_views(1, 256)
+    target = MaskTarget(torch.stack([rasterize_mesh(mug, c).mask.float() for c in cams]),
+                        [c.to(torch.float32) for c in cams])
+    gen = get_generator("dishes")
+    torch.set_num_threads(1)
+    probs = {k: Problem(gen, target, FitSettings(budget=10, preset="mug", **kw)) for k, kw in FIT_CONFIGS.items()}
+    times: dict[str, list[float]] = {k: [] for k in probs}
+    for _ in range(8):   # interleaved, the first round a warm-up
+        for k, p in probs.items():
+            x = p.x0()
+            t0 = time.perf_counter()
+            p.objective(x, dict(p.d0), True)
+            times[k].append(time.perf_counter() - t0)
+    rows = []
+    for k, p in probs.items():
+        m = p.mesh_world(p.x0(), dict(p.d0))
+        t = sorted(times[k][1:])
+        rows.append({"vertices": f"real-mug fit, {k}: {m.n_verts} vertices, {m.n_faces} faces", "dtype": "float32",
+                     "threads": 1, "forward ms (median)": "-", "forward ms (best)": "-",
+                     "fwd+bwd ms (median)": round(1e3 * t[len(t) // 2], 2), "fwd+bwd ms (best)": round(1e3 * t[0], 2)})
+    return rows
+
+
 def run(out_dir: Path) -> list[dict]:
     from ipm.subdiv import SCHEMES
 
@@ -90,6 +131,7 @@ def run(out_dir: Path) -> list[dict]:
                      round(1e3 * fb, 2), "fwd+bwd ms (median)": round(1e3 * bm, 2),
                      "fwd+bwd ms (best)": round(1e3 * bb, 2)})
     rows += _neural_rows()
+    rows += _fit_rows()
     torch.set_num_threads(before)
     notes = (f"Operator build (libigl loop_matrix twice, composed; cached per face array): {build_s:.2f} s, "
              f"{op.scipy.nnz} nonzeros, {len(NF)} faces. Medians and bests of 7 repeats after 1 warm-up; "

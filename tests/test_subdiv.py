@@ -188,3 +188,9 @@ def test_cli_jacobian_of_a_subdivided_mesh(tmp_path, capsys):
     mesh = g.mesh(*g.split(g.values("mug"), torch.float64))
     assert data["J"].shape == (3 * len(data["verts"]), len(g.spec.continuous))
     assert len(data["faces"]) == 4 * mesh.n_faces and "check: ok" in stdout
+
+
+def test_cli_jacobian_refuses_a_scheme_that_is_not_linear(tmp_path, capsys):
+    out = tmp_path / "J.npz"
+    code, _, err = run_cli(["jacobian", "dishes", "--subdivide", "neural", "-o", out], capsys)
+    assert code == 2 and "neural is not a linear scheme" in err and not out.exists()

@@ -147,6 +147,21 @@ def check_output(path: Path, allowed: tuple[str, ...]) -> Path:
     return check_writable(path)
 
 
+def resolve_subdivision(option: str, method: str, levels: int):
+    """The subdivision scheme named ``method`` (given as ``option``) once ``levels`` is checked; a
+    :class:`UsageError` names the option and what is allowed."""
+    from ipm.errors import InputError
+    from ipm.subdiv import SCHEMES, check_levels
+
+    if method not in SCHEMES.names():
+        raise UsageError(f"{option}: expected one of {', '.join(SCHEMES.names())}, got {method!r}")
+    try:
+        check_levels(levels)
+    except InputError as e:
+        raise UsageError(f"--{e}") from None
+    return SCHEMES.get(method)
+
+
 def emit(obj, as_json: bool) -> None:
     """Print a result on stdout: JSON or plain lines."""
     if as_json:

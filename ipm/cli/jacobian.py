@@ -22,6 +22,7 @@ from ipm.cli.common import (
     emit,
     resolve_device,
     resolve_params,
+    resolve_subdivision,
     seed_everything,
 )
 
@@ -91,16 +92,10 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--dtype: expected float32 or float64, got {dtype!r}")
         if points is None and n_points < 1:
             raise UsageError(f"--n-points: expected a positive count, got {n_points}")
-        if subdivide is not None:
-            from ipm.errors import InputError
-            from ipm.subdiv import SCHEMES, check_levels
-
-            if subdivide not in SCHEMES.names():
-                raise UsageError(f"--subdivide: expected one of {', '.join(SCHEMES.names())}, got {subdivide!r}")
-            try:
-                check_levels(levels)
-            except InputError as e:
-                raise UsageError(f"--{e}") from None
+        scheme = resolve_subdivision("--subdivide", subdivide, levels) if subdivide is not None else None
+        if scheme is not None and not hasattr(scheme, "operator"):
+            raise UsageError(f"--subdivide: {subdivide} is not a linear scheme (its Jacobian is not S J); "
+                             "expected loop or midpoint")
         dev = resolve_device(device)
         dt = getattr(torch, dtype)
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
@@ -151,9 +146,7 @@ def register(app: typer.Typer) -> None:
             mesh = g.mesh(theta, discrete, lod)
             if subdivide is not None:
                 # the subdivided mesh is S V(theta) with S fixed by the faces: its Jacobian is S J
-                from ipm.subdiv import SCHEMES
-
-                op, sub_faces = SCHEMES.get(subdivide).operator(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
+                op, sub_faces = scheme.operator(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
                 coarse_f, coarse_jac = f, jac
 
                 def f(th):

@@ -13,7 +13,7 @@ from typing import Annotated
 
 import typer
 
-from ipm.cli.common import JsonOpt, UsageError, check_output, emit
+from ipm.cli.common import JsonOpt, UsageError, check_output, emit, resolve_subdivision
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
 
@@ -39,17 +39,10 @@ def register(app: typer.Typer) -> None:
         from ipm.errors import InputError
         from ipm.io.export import export_mesh
         from ipm.io.meshes import load_mesh
-        from ipm.subdiv import SCHEMES, check_levels
         from ipm.types import TriMesh
 
         check_output(output, MESH_SUFFIXES)
-        if method not in SCHEMES.names():
-            raise UsageError(f"--method: expected one of {', '.join(SCHEMES.names())}, got {method!r}")
-        try:
-            check_levels(levels)
-        except InputError as e:
-            raise UsageError(f"--{e}") from None
-        scheme = SCHEMES.get(method)
+        scheme = resolve_subdivision("--method", method, levels)
         if weights is not None:
             if method != "neural":
                 raise UsageError(f"--weights applies to --method neural, not {method}")

@@ -54,8 +54,21 @@ def pair_loss(net: NeuralSubdivision, pair: Pair) -> torch.Tensor:
 def train(s: TrainSettings, *, checkpoint: str | Path | None = None, every: int = 100, resume: bool = False,
           progress: Callable[[int, float], None] | None = None) -> NeuralSubdivision:
     """Train from scratch (or from ``checkpoint`` with ``resume``); the checkpoint is rewritten every
-    ``every`` steps and at the end. Returns the network (float32)."""
+    ``every`` steps and at the end. Returns the network (float32).
+
+    Runs on one torch thread (restored after): with two, the scatter-adds of the half-flaps' pooling
+    sum in an order that varies from run to run, and a resumed run drifted from an uninterrupted one in
+    the last bits (tests/test_subdiv_neural.py); the network is small enough that threads gain little."""
     s.check()
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        return _train(s, checkpoint, every, resume, progress)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def _train(s: TrainSettings, checkpoint, every: int, resume: bool, progress) -> NeuralSubdivision:
     torch.manual_seed(s.seed)
     net = NeuralSubdivision(NetConfig(s.features, s.hidden))
     opt = torch.optim.Adam(net.parameters(), lr=s.lr)
