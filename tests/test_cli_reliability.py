@@ -330,15 +330,22 @@ def test_ctrl_c_exits_130_with_a_line(tmp_path):
     import signal
     import time
 
-    proc = subprocess.Popen([sys.executable, "-m", "ipm.cli", "jacobian", "chair", "--n-points", "2000000",
-                             "--mode", "rev", "-o", str(tmp_path / "j.npz")], cwd=ROOT,
+    # a long training whose first checkpoint says that it is under way (a fixed wait was either too short,
+    # the signal landing while Python still imported, or too long, the job done, on a loaded machine)
+    out_file = tmp_path / "w.npz"
+    ckpt = out_file.with_suffix(".ckpt.npz")
+    proc = subprocess.Popen([sys.executable, "-m", "ipm.cli", "train-subdivision", "-o", str(out_file),
+                             "--steps", "1000000", "--pairs", "2", "--checkpoint-every", "1"], cwd=ROOT,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(4.0)
+    deadline = time.monotonic() + 120
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert ckpt.exists(), proc.poll()
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, (proc.returncode, err)
     assert err.strip().splitlines()[-1] == "ipm: error: interrupted"
-    assert not (tmp_path / "j.npz").exists()
+    assert not out_file.exists()
 
 
 @pytest.mark.parametrize("what, registry", [("strategies", "ipm.optim.strategies:STRATEGIES"),

@@ -38,6 +38,8 @@ BAD = {
     "image_weight": ("image_weight", [-2.0, INF, False]),
     "part_cost": ("part_cost", [-0.01, INF, NAN, True]),
     "anchor": ("anchor", [-0.01, INF, NAN, "strong", True]),
+    "subdivide": ("subdivision", ["butterfly", 1, True]),
+    "subdivide_levels": ("subdivision levels", [0, 4, 1.5, True, "2"]),
     "memetic": ("memetic", ["fast", 3, [1, 2]]),
     "nlopt": ("nlopt", ["GN_ESCH", 0]),
     "memetic.population": ("memetic population", [1, 0, 4.5, True, "8"]),

@@ -29,12 +29,18 @@ def register(app: typer.Typer) -> None:
         lr: Annotated[float, typer.Option(help="Adam's learning rate (cosine down to a twentieth)")] = 2e-3,
         features: Annotated[int, typer.Option(help="feature size per vertex")] = 16,
         hidden: Annotated[int, typer.Option(help="hidden width of the three MLPs")] = 64,
+        real: Annotated[list[Path] | None, typer.Option(help="a closed mesh to train on too (decimated by QEM, its "
+                                                           "levels mapped back), repeatable")] = None,
+        no_procedural: Annotated[bool, typer.Option("--no-procedural", help="train on --real meshes only")] = False,
+        map_: Annotated[str, typer.Option("--map", help="how real pairs are mapped back: closest or "
+                                                        "normal")] = "closest",
         checkpoint_every: Annotated[int, typer.Option("--checkpoint-every", help="steps between checkpoints")] = 100,
         resume: Annotated[bool, typer.Option(help="continue from OUTPUT.ckpt.npz")] = False,
         seed: SeedOpt = 0,
         json_out: JsonOpt = False,
     ) -> None:
-        """Train neural subdivision (half-flap MLPs, Liu et al. 2020) on dish pairs with exact correspondences."""
+        """Train neural subdivision (half-flap MLPs, Liu et al. 2020) on dish pairs with exact correspondences
+        and, with --real, on decimated closed meshes mapped back."""
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
@@ -46,7 +52,8 @@ def register(app: typer.Typer) -> None:
         if checkpoint_every < 1:
             raise UsageError(f"--checkpoint-every: expected at least 1, got {checkpoint_every}")
         s = TrainSettings(pairs=pairs, steps=steps, lr=lr, levels=levels, seed=seed, features=features,
-                          hidden=hidden)
+                          hidden=hidden, procedural=not no_procedural,
+                          real=tuple(str(p) for p in real or ()), map=map_)
         try:
             s.check()
         except InputError as e:

@@ -6,6 +6,7 @@ and the step, so a resumed run continues exactly where it stopped."""
 
 from __future__ import annotations
 
+import json
 import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
@@ -28,8 +29,13 @@ class TrainSettings:
     seed: int = 0
     features: int = 16
     hidden: int = 64
+    procedural: bool = True   # dish pairs (ipm.subdiv.pairs)
+    real: tuple[str, ...] = ()  # closed mesh files, each decimated to REAL_VERTICES (ipm.subdiv.mapped)
+    map: str = "closest"      # how a real pair's levels are mapped back (ipm.subdiv.mapped.METHODS)
 
     def check(self) -> None:
+        from ipm.subdiv.mapped import METHODS
+
         for name, lo, hi in (("pairs", 1, 100_000), ("steps", 1, 10_000_000), ("levels", 1, 3),
                              ("features", 1, 1024), ("hidden", 1, 4096)):
             v = getattr(self, name)
@@ -37,11 +43,58 @@ class TrainSettings:
                 raise InputError(f"{name}: expected an integer from {lo} to {hi}, got {v!r}")
         if not (isinstance(self.lr, float | int) and 0 < self.lr <= 1):
             raise InputError(f"lr: expected a learning rate in (0, 1], got {self.lr!r}")
+        if self.map not in METHODS:
+            raise InputError(f"map: expected one of {', '.join(METHODS)}, got {self.map!r}")
+        if not self.procedural and not self.real:
+            raise InputError("training pairs: expected procedural pairs, real meshes or both, got neither")
+
+
+# each real mesh gives one pair per decimation target
+REAL_VERTICES = (300, 400, 500)
 
 
 def make_pairs(n: int, levels: int, seed: int) -> list[Pair]:
     """``n`` procedural pairs (float32) from dishes presets moved by the seed's random numbers."""
     return [dish_pair(v, levels, torch.float32) for v in random_dishes(n, np.random.default_rng(seed))]
+
+
+def _read(path: str) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh file's vertices and faces as stored (trimesh; no up axis or normalization: the network and
+    its loss do not depend on the placement, the orientation or the scale of a mesh)."""
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"real mesh: expected an existing mesh file, got {path}")
+    try:
+        m = trimesh.load_mesh(str(p), process=False)
+        V = np.asarray(m.vertices, dtype=np.float64)
+        F = np.asarray(m.faces, dtype=np.int64).reshape(-1, 3)
+    except Exception as e:  # trimesh raises many kinds of errors for broken files
+        raise InputError(f"real mesh {path}: expected a readable mesh file, got {type(e).__name__}") from None
+    if len(F) == 0 or not np.isfinite(V).all():
+        raise InputError(f"real mesh {path}: expected triangles with finite vertices")
+    return V, F
+
+
+def real_pairs(paths: tuple[str, ...], levels: int, method: str) -> list[Pair]:
+    """Pairs from closed mesh files, one per decimation target of :data:`REAL_VERTICES`
+    (:func:`ipm.subdiv.mapped.mapped_pair`)."""
+    from ipm.subdiv.mapped import clean, mapped_pair
+
+    out = []
+    for path in paths:
+        V, F = clean(*_read(path))
+        for n in REAL_VERTICES:
+            try:
+                out.append(mapped_pair(V, F, n, levels, method))
+            except InputError as e:
+                raise InputError(f"real mesh {path}: {e}") from None
+    return out
+
+
+def training_pairs(s: TrainSettings) -> list[Pair]:
+    return (make_pairs(s.pairs, s.levels, s.seed) if s.procedural else []) + real_pairs(s.real, s.levels, s.map)
 
 
 def pair_loss(net: NeuralSubdivision, pair: Pair) -> torch.Tensor:
@@ -78,15 +131,16 @@ def _train(s: TrainSettings, checkpoint, every: int, resume: bool, progress) -> 
             raise InputError(f"resume: expected an existing checkpoint, got {checkpoint}")
         net, extra = load_weights(checkpoint)
         saved = json_settings(extra)
-        if saved != asdict(s):
-            diff = sorted(k for k in saved.keys() | asdict(s).keys() if saved.get(k) != asdict(s).get(k))
+        now = json.loads(json.dumps(asdict(s)))   # tuples as lists, as the checkpoint holds them
+        if saved != now:
+            diff = sorted(k for k in saved.keys() | now.keys() if saved.get(k) != now.get(k))
             raise InputError(f"resume: the checkpoint was trained with other settings ({', '.join(diff)}); "
                              "start a new run instead")
         opt = torch.optim.Adam(net.parameters(), lr=s.lr)
         _load_adam(opt, net, extra)
         start = int(extra["step"])
-    pairs = make_pairs(s.pairs, s.levels, s.seed)
-    order = np.random.default_rng(s.seed).permutation(np.arange(s.steps) % s.pairs)
+    pairs = training_pairs(s)
+    order = np.random.default_rng(s.seed).permutation(np.arange(s.steps) % len(pairs))
     for step in range(start, s.steps):
         for g in opt.param_groups:   # cosine from lr to lr / 20
             g["lr"] = s.lr * (0.05 + 0.475 * (1 + math.cos(math.pi * step / max(s.steps - 1, 1))))
@@ -102,8 +156,6 @@ def _train(s: TrainSettings, checkpoint, every: int, resume: bool, progress) -> 
 
 
 def json_settings(extra: dict) -> dict:
-    import json
-
     raw = extra.get("settings")
     if raw is None:
         raise InputError("resume: the file holds weights without training settings (not a checkpoint)")
@@ -112,8 +164,6 @@ def json_settings(extra: dict) -> dict:
 
 def save_checkpoint(net: NeuralSubdivision, opt: torch.optim.Adam, s: TrainSettings, step: int,
                     path: str | Path) -> Path:
-    import json
-
     extra: dict = {"step": np.array(step), "settings": np.array(json.dumps(asdict(s)))}
     names = dict(net.named_parameters())
     for k, p in names.items():
