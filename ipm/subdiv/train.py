@@ -67,7 +67,9 @@ def _read(path: str) -> tuple[np.ndarray, np.ndarray]:
     if not p.is_file():
         raise InputError(f"real mesh: expected an existing mesh file, got {path}")
     try:
-        m = trimesh.load_mesh(str(p), process=False)
+        # materials are not needed (and a missing texture would be logged with a traceback)
+        kwargs = {"skip_materials": True} if p.suffix.lower() in (".obj", ".ply") else {}
+        m = trimesh.load_mesh(str(p), process=False, **kwargs)
         V = np.asarray(m.vertices, dtype=np.float64)
         F = np.asarray(m.faces, dtype=np.int64).reshape(-1, 3)
     except Exception as e:  # trimesh raises many kinds of errors for broken files
