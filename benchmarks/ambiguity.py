@@ -13,7 +13,7 @@ the 16 held-out views). If the input-view loss of ``x8`` is *higher* than that o
 held-out IoU is far higher, the single-view objective prefers the wrong shape: no search on it can land,
 only a prior (or more views) can. If ``x8`` has the lower loss, the search did not find it.
 
-Usage: ``python -m benchmarks.ambiguity [--experiment TOML] [--steps N] [-o OUT.md] TARGET ...``
+Usage: ``python -m benchmarks.ambiguity [--experiment TOML] [--steps N] [--budget N] [-o OUT.md] TARGET ...``
 (``make bench-ambiguity`` runs the four targets that missed the bar in results/table_coverage).
 """
 
@@ -45,8 +45,9 @@ def _score(exp_path: str, target: str, mesh, seed: int) -> float:
     return float(np.mean([mask_iou(a, b) for a, b in zip(pm, tm)]))
 
 
-def _fit(exp_path: str, target: str, method: str, views: int, seed: int):
-    """run_fit as the bench's ``ipm`` method runs it -> (result, problem, best point, seconds)."""
+def _fit(exp_path: str, target: str, method: str, views: int, seed: int, budget: int | None = None):
+    """run_fit as the bench's ``ipm`` method runs it (``budget``: another than the experiment's) ->
+    (result, problem, best point, seconds)."""
     from ipm.bench import harness as H
     from ipm.bench.config import load_experiment
     from ipm.bench.methods import METHODS
@@ -61,8 +62,8 @@ def _fit(exp_path: str, target: str, method: str, views: int, seed: int):
     size = s.max_size if s.max_size is not None else max(masks.shape[1:])
     m, c = fit_views(masks, cams, size, torch.float32)
     t0 = time.perf_counter()
-    res, prob, best = run_fit(s.generator, MaskTarget(m, c), FitSettings(budget=spec.budget_or(exp.budget),
-                                                                         seed=seed, **s.fit))
+    budget = budget or spec.budget_or(exp.budget)
+    res, prob, best = run_fit(s.generator, MaskTarget(m, c), FitSettings(budget=budget, seed=seed, **s.fit))
     return res, prob, best, time.perf_counter() - t0
 
 
@@ -81,8 +82,8 @@ def _refine(prob, x: torch.Tensor, d: dict, steps: int, lr: float) -> torch.Tens
     return adam(ev, x, d, steps, lr, mask=prob.pose_mask)[0]
 
 
-def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0) -> dict:
-    r1, p1, b1, t1 = _fit(exp_path, target, "ipm", 1, seed)
+def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0, budget: int | None = None) -> dict:
+    r1, p1, b1, t1 = _fit(exp_path, target, "ipm", 1, seed, budget)
     r8, _, b8, t8 = _fit(exp_path, target, "ipm-bound", 8, seed)
     x1, d1 = b1["x"], b1["discrete"]
     x8, d8 = b8["x"], b8["discrete"]
@@ -95,8 +96,9 @@ def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0) -
     return row
 
 
-def _table(rows: list[dict], steps: int, lr: float, exp_path: str) -> str:
-    out = [f"# Single-view ambiguity ({exp_path}, seed 0; x8 refined {steps} Adam steps at lr {lr})", "",
+def _table(rows: list[dict], steps: int, lr: float, exp_path: str, budget: int | None = None) -> str:
+    k1 = f"; the K = 1 fit at {budget} evaluations" if budget else ""
+    out = [f"# Single-view ambiguity ({exp_path}, seed 0; x8 refined {steps} Adam steps at lr {lr}{k1})", "",
            "K = 1 objective (soft-IoU loss, the fit's final blur, its priors) and hard input-view IoU, with the",
            "held-out IoU as a K = 1 cell is scored. x1: the K = 1 fit; x8: the 8-view fit; x8r: x8 refined on",
            "the K = 1 objective alone. `search missed` when x8 or x8r has a lower K = 1 loss than x1: a better",
@@ -123,15 +125,16 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--experiment", default="experiments/table_coverage.toml")
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--lr", type=float, default=0.003)
+    ap.add_argument("--budget", type=int, default=None, help="the K = 1 fit's budget (default: the experiment's)")
     ap.add_argument("-o", "--out", default="results/ambiguity.md")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
     rows = []
     for t in a.targets:
-        rows.append(diagnose(a.experiment, t, a.steps, a.lr))
+        rows.append(diagnose(a.experiment, t, a.steps, a.lr, budget=a.budget))
         r = rows[-1]
         print(f"{t}: x1 {r['x1']}  x8 {r['x8']}  x8r {r['x8r']}", flush=True)
-    write_text(Path(a.out), _table(rows, a.steps, a.lr, a.experiment))
+    write_text(Path(a.out), _table(rows, a.steps, a.lr, a.experiment, a.budget))
     print(f"wrote {a.out}")
     return 0
 

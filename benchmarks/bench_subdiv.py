@@ -37,9 +37,10 @@ def _bottle() -> tuple[np.ndarray, np.ndarray]:
 
     path = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "vessels"
     path = path / "trimesh_fuze_bottle.obj"
+    from ipm.subdiv import clean
+
     m = load_mesh(path, up="z", normalize=True)
-    W, inv = np.unique(m.verts.numpy(), axis=0, return_inverse=True)
-    return W, inv.reshape(-1)[m.faces.numpy()]
+    return clean(m.verts.numpy(), m.faces.numpy())
 
 
 def _neural_rows() -> list[dict]:

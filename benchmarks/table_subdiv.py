@@ -46,7 +46,7 @@ def _decimate(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _targets() -> list[tuple[str, np.ndarray, np.ndarray]]:
     from ipm.generators import get_generator
     from ipm.io.meshes import load_mesh
-    from ipm.subdiv.mapped import clean
+    from ipm.subdiv import clean
     from ipm.subdiv.pairs import random_dishes
 
     out = []

@@ -10,7 +10,8 @@ import torch
 import trimesh
 
 from ipm.errors import InputError
-from ipm.subdiv.mapped import RAY_REACH, clean, decimate, map_points, map_quality, mapped_pair
+from ipm.subdiv import clean
+from ipm.subdiv.mapped import RAY_REACH, decimate, map_points, map_quality, mapped_pair
 from ipm.subdiv.train import TrainSettings, train
 
 

@@ -33,12 +33,12 @@ def register(app: typer.Typer) -> None:
         json_out: JsonOpt = False,
     ) -> None:
         """Subdivide a triangle mesh (Loop, midpoint or neural), differentiable in ipm.subdiv."""
-        import numpy as np
         import torch
 
         from ipm.errors import InputError
         from ipm.io.export import export_mesh
         from ipm.io.meshes import load_mesh
+        from ipm.subdiv import clean
         from ipm.types import TriMesh
 
         check_output(output, MESH_SUFFIXES)
@@ -50,17 +50,10 @@ def register(app: typer.Typer) -> None:
         if method == "neural":
             scheme.network()  # a bad weights file is refused before the mesh is read
         src = load_mesh(mesh, up="y", normalize=False)
-        V = src.verts.numpy()
-        welded, inverse = np.unique(V, axis=0, return_inverse=True)
-        F = inverse.reshape(-1)[src.faces.numpy()]
-        keep = (F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])
-        F = F[keep]
+        # welded, zero-area triangles and the vertices left on no face dropped
+        welded, F = clean(src.verts.numpy(), src.faces.numpy())
         if len(F) == 0:
             raise UsageError(f"mesh file {mesh}: every triangle repeats a vertex; nothing to subdivide")
-        used = np.unique(F)  # vertices no face uses are dropped, so that none stays alone
-        remap = np.full(len(welded), -1, dtype=np.int64)
-        remap[used] = np.arange(len(used))
-        F, welded = remap[F], welded[used]
         t0 = time.perf_counter()
         try:
             with torch.no_grad():
@@ -71,5 +64,5 @@ def register(app: typer.Typer) -> None:
         export_mesh(TriMesh(nv.detach(), torch.as_tensor(nf)), output, sidecar=False)
         emit({"output": str(output), "method": method, "levels": levels,
               "input": {"vertices": int(src.n_verts), "welded": int(len(welded)), "faces": int(len(F)),
-                        "dropped_degenerate": int((~keep).sum())},
+                        "dropped_degenerate": int(src.n_faces - len(F))},
               "vertices": int(nv.shape[0]), "faces": int(len(nf)), "seconds": round(seconds, 3)}, json_out)

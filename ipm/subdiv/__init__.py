@@ -10,8 +10,8 @@ gradients flow back as ``S^T g`` and the Jacobian of a subdivided generator mesh
 from __future__ import annotations
 
 from ipm.registry import Registry
-from ipm.subdiv.linear import LinearScheme, Scheme, check_levels, subdivide
+from ipm.subdiv.linear import LinearScheme, Scheme, check_levels, clean, subdivide
 
 SCHEMES: Registry[Scheme] = Registry("subdivision scheme", ["ipm.subdiv.schemes"])
 
-__all__ = ["SCHEMES", "LinearScheme", "Scheme", "check_levels", "subdivide"]
+__all__ = ["SCHEMES", "LinearScheme", "Scheme", "check_levels", "clean", "subdivide"]

@@ -28,6 +28,18 @@ class Scheme(Protocol):
         subdivided ``levels`` times."""
 
 
+def clean(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A mesh ready for :func:`check_mesh`: vertices welded where they coincide (an STL stores every
+    triangle on its own), degenerate faces dropped, unused vertices removed."""
+    W, inv = np.unique(np.asarray(V, dtype=np.float64), axis=0, return_inverse=True)
+    F = inv.reshape(-1)[np.asarray(F, dtype=np.int64)]
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    used = np.unique(F)
+    remap = np.full(len(W), -1, dtype=np.int64)
+    remap[used] = np.arange(len(used))
+    return W[used], remap[F]
+
+
 def check_levels(levels: int) -> int:
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise InputError(f"levels: expected an integer from 1 to {MAX_LEVELS}, got {levels!r}")

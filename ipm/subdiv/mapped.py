@@ -26,6 +26,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
+from ipm.subdiv.linear import clean
 from ipm.subdiv.pairs import Pair
 
 METHODS = ("closest", "normal")
@@ -33,17 +34,6 @@ COLLAPSE = 1e-6   # points closer than this (unit-sphere units) count as landed 
 # a crossing along the normal farther than this many times the closest point's distance is another sheet
 # (the far side of a thin wall), not this point's: the closest point is taken instead
 RAY_REACH = 2.0
-
-
-def clean(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices welded where they coincide, degenerate faces dropped, unused vertices removed."""
-    W, inv = np.unique(np.asarray(V, dtype=np.float64), axis=0, return_inverse=True)
-    F = inv.reshape(-1)[np.asarray(F, dtype=np.int64)]
-    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
-    used = np.unique(F)
-    remap = np.full(len(W), -1, dtype=np.int64)
-    remap[used] = np.arange(len(used))
-    return W[used], remap[F]
 
 
 def decimate(V: np.ndarray, F: np.ndarray, vertices: int) -> tuple[np.ndarray, np.ndarray]:

@@ -82,7 +82,8 @@ def _read(path: str) -> tuple[np.ndarray, np.ndarray]:
 def real_pairs(paths: tuple[str, ...], levels: int, method: str) -> list[Pair]:
     """Pairs from closed mesh files, one per decimation target of :data:`REAL_VERTICES`
     (:func:`ipm.subdiv.mapped.mapped_pair`)."""
-    from ipm.subdiv.mapped import clean, mapped_pair
+    from ipm.subdiv import clean
+    from ipm.subdiv.mapped import mapped_pair
 
     out = []
     for path in paths:
