@@ -61,7 +61,7 @@ weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the packa
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
-table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 2 minutes)
+table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 15 minutes: it trains 10 networks)
 	$(BIN)/python -m benchmarks.table_subdiv results/table_subdiv
 
 table-subdiv-fit: $(STAMP) ## fits rendering a subdivided coarse level of detail against finer ones (real mug), results/subdiv_fit/
