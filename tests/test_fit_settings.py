@@ -7,6 +7,7 @@ import math
 import numpy as np
 import pytest
 
+from ipm import losses as L
 from ipm.errors import InputError
 from ipm.optim import discrete as D
 from ipm.optim.settings import FitSettings
@@ -19,7 +20,7 @@ BAD = {
     "seed": ("seed", [-1, 1.5, "0", False]),
     "discrete": ("discrete search", ["random", 5, None]),
     "camera": ("camera", ["maybe", 1, True]),
-    "loss": ("loss", ["l7", 0]),
+    "loss": ("loss", ["l7", 0, "iou+", "iou+iou", "0*iou", "2*sinkhorn+l7", "iou-mse"]),
     "local": ("local optimizer", ["sgd", None]),
     "lr": ("lr", [0.0, -0.1, 1.5, NAN, INF, "fast", True]),
     "sigma": ("sigma", [-1.0, NAN, INF, -INF, "wide", False]),
@@ -56,6 +57,12 @@ BAD = {
     "nlopt.algorithm": ("nlopt algorithm", ["GN_NOPE", 1, None]),
     "nlopt.refine_steps": ("nlopt refine_steps", [0, 2.5, True]),
     "nlopt.population": ("nlopt population", [-1, 0.5, True]),
+    "transport": ("transport", ["sinkhorn", 3]),
+    "transport.blur": ("transport blur", [0.0, -0.1, 1.5, NAN, INF, True, "wide"]),
+    "transport.iterations": ("transport iterations", [0, 1001, 2.5, True]),
+    "transport.dustbin": ("transport dustbin", [0.0, -1.0, 3.0, NAN, INF, "far"]),
+    "transport.projections": ("transport projections", [0, 4097, 1.5, True]),
+    "transport.size": ("transport size", [7, 513, 32.5, False]),
 }
 # taken as given: lod is a generator's own level-of-detail value
 UNCHECKED = {"lod"}
@@ -77,6 +84,7 @@ def test_every_field_has_bad_values():
     names = {f.name for f in dataclasses.fields(FitSettings)} - UNCHECKED
     names |= {f"memetic.{f.name}" for f in dataclasses.fields(D.MemeticSettings)}
     names |= {f"nlopt.{f.name}" for f in dataclasses.fields(D.NloptSettings)}
+    names |= {f"transport.{f.name}" for f in dataclasses.fields(L.TransportSettings)}
     assert names == set(BAD)
 
 

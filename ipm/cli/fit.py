@@ -50,7 +50,14 @@ def register(app: typer.Typer) -> None:
         budget: Annotated[int, typer.Option(help="function evaluations (one render + loss each)")] = 1500,
         seed: SeedOpt = 0,
         preset: PresetOpt = None,
-        loss: Annotated[str, typer.Option(help="mask loss (ipm list losses)")] = "iou",
+        loss: Annotated[str, typer.Option(help=(
+            "mask loss (ipm list losses: iou, mse, sinkhorn, sliced) or a weighted sum such as iou+0.5*sinkhorn; "
+            "the transport losses pull masks that do not overlap together"))] = "iou",
+        blur: Annotated[float | None, typer.Option(help=(
+            "sinkhorn: entropic blur, a share of the image's longer side (default 0.05)"))] = None,
+        dustbin: Annotated[float | None, typer.Option(help=(
+            "sinkhorn: partial transport; mass farther than this share of the image from the other mask is "
+            "left unmatched (for a target the generator cannot explain whole)"))] = None,
         local: Annotated[str, typer.Option(help="gradient refinement: adam, mma or lbfgs (nlopt)")] = "adam",
         lr: Annotated[float | None, typer.Option(help="Adam learning rate in normalized parameter space "
                                                  "(default: the generator's, 0.005 for dishes, else 0.02)")] = None,
@@ -169,6 +176,7 @@ def register(app: typer.Typer) -> None:
                          pose=not no_pose,
                          prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm),
                          subdivide=subdivide, subdivide_levels=subdivide_levels, lod=lod,
+                         transport={k: v for k, v in (("blur", blur), ("dustbin", dustbin)) if v is not None},
                          **{k: v for k, v in (("polish", polish), ("part_cost", part_cost), ("anchor", anchor))
                             if v is not None})
         finally:

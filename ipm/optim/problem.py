@@ -98,6 +98,7 @@ class Problem:
         # False while the outline is placed before the search (run_fit): part labels then count nothing
         self.use_parts = True
         self.dtype = dtype
+        self.mask_loss = L.mask_loss(settings.loss, **dataclasses.asdict(settings.transport))
         self.device = target.masks.device if isinstance(target, MaskTarget) else target.mesh.verts.device
         self.start = gen.values(settings.preset, settings.fix)
         cont = [p.name for p in gen.spec.continuous]
@@ -421,7 +422,7 @@ class Problem:
                 mesh = self.mesh_world(x, discrete) if self.gen.kind == "mesh" else None
                 pred = self.render_soft(x, discrete, mesh)
                 tgt = self.target.masks.to(pred.dtype)
-                loss = L.LOSSES[self.s.loss](pred, tgt)
+                loss = self.mask_loss(pred, tgt)
                 if self.target.outside_is_background and mesh is not None:
                     loss = loss + OUTSIDE_WEIGHT * outside_share(mesh.verts, self.cameras(x))
                 if self.target.cues:

@@ -45,7 +45,8 @@ class FitSettings:
     seed: Annotated[int, Meta(ge=0, extra={"noun": "a seed"})] = 0
     discrete: str = "memetic"        # a search strategy: ipm.optim.strategies.STRATEGIES
     camera: CameraMode = "known"
-    loss: str = "iou"                # a mask loss of ipm.losses.LOSSES; chamfer for mesh targets is automatic
+    # a mask loss of ipm.losses.LOSSES or a weighted sum ("iou+0.5*sinkhorn"); chamfer for mesh targets is automatic
+    loss: str = "iou"
     local: str = "adam"              # adam | mma | lbfgs (ipm.optim.gradient.LOCAL)
     lr: D.LearningRate | None = None  # Adam step in normalized space; None: the generator's (see fit_lr)
     # soft rasterizer blur; 0 = the renderer's default for the image size
@@ -83,11 +84,14 @@ class FitSettings:
     image_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
     memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
     nlopt: D.NloptSettings = field(default_factory=D.NloptSettings)
+    # the transport losses' settings (sinkhorn: blur, iterations, dustbin; sliced: projections; both: size)
+    transport: L.TransportSettings = field(default_factory=L.TransportSettings)
 
     def __post_init__(self):
         # nested settings may come as dicts (JSON run files, experiment TOML, the Python API); unknown
         # keys are refused here, the values by check()
-        for name, cls in (("memetic", D.MemeticSettings), ("nlopt", D.NloptSettings)):
+        for name, cls in (("memetic", D.MemeticSettings), ("nlopt", D.NloptSettings),
+                          ("transport", L.TransportSettings)):
             v = getattr(self, name)
             if isinstance(v, dict):
                 setattr(self, name, dataclass_from(cls, v, f"{name} settings", "setting(s)"))
@@ -98,7 +102,7 @@ class FitSettings:
         import msgspec
 
         _one_of(self.discrete, "discrete search", STRATEGIES.names())
-        _one_of(self.loss, "loss", L.LOSSES.names())
+        terms = L.parse_loss(self.loss)
         _one_of(self.local, "local optimizer", G.LOCAL)
         if self.subdivide is not None:
             from ipm.subdiv import SCHEMES
@@ -112,6 +116,8 @@ class FitSettings:
         bad = first_infinite(data, FitSettings)
         if bad:
             raise InputError(_message(data, "", bad))
+        if self.transport.dustbin is not None and not any(n == "sinkhorn" for _, n in terms):
+            raise InputError(f"transport dustbin: applies to a loss with a sinkhorn term, got loss {self.loss!r}")
         m = self.memetic
         if m.tournament > m.population:
             raise InputError(f"memetic tournament: expected a size in [1, {m.population}] (the population), "
