@@ -113,8 +113,10 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
         scores.update(photo_scores(prob, best, photo))
     if run_dir is not None:
         out = save_run(run_dir, prob, best, result, cfg, scores, photo)
-        scores = out["scores"]
-    return replace(result, scores=scores, run_dir=None if run_dir is None else str(run_dir))
+        scores, pose = out["scores"], out["pose"]
+    else:
+        pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True)
+    return replace(result, scores=scores, pose=pose, run_dir=None if run_dir is None else str(run_dir))
 
 
 def photo_scores(prob, best: dict, photo) -> dict:
@@ -181,7 +183,8 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     run_dir = Path(run_dir)
     x = best["x"].to(torch.float64)
     mesh = prob.mesh_world(x, best["discrete"]).detach()
-    meta = {"generator": prob.gen.name, "params": result.params, "pose": prob.pose_json(x, best["discrete"])}
+    pose = prob.pose_json(x, best["discrete"], symmetry=True)
+    meta = {"generator": prob.gen.name, "params": result.params, "pose": pose}
     write_json(run_dir / "params.json", meta)
     export_mesh(mesh, run_dir / "mesh.glb", meta, sidecar=False)
     export_mesh(mesh, run_dir / "mesh.obj", meta, sidecar=False)
@@ -212,7 +215,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     out = {
         "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
         "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),
-        "scores": scores, "params": result.params, "pose": prob.pose_json(x, best["discrete"]),
+        "scores": scores, "params": result.params, "pose": pose,
         "discrete": best["discrete"], "tied": list(result.tied),
         "files": files,
         "versions": {"ipm": ipm.__version__, "torch": torch.__version__, "numpy": np.__version__},

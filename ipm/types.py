@@ -179,3 +179,6 @@ class FitResult:
     # discrete parameters the fit set back to the preset's value because the input could not tell the
     # values apart (a handle hidden behind the body: ipm.optim.fit.break_ties)
     tied: tuple[str, ...] = ()
+    # the pose as JSON with the turns that map the fitted shape onto itself and the equivalent poses
+    # (ipm.optim.problem.Problem.pose_json with symmetry)
+    pose: dict = field(default_factory=dict)

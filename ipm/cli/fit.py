@@ -184,6 +184,11 @@ def register(app: typer.Typer) -> None:
                 bar.stop()
         out = {"run": result.run_dir, "loss": result.loss, "evaluations": result.evaluations,
                "wall_time_s": round(result.wall_time_s, 2), **{k: v for k, v in result.scores.items()}}
+        if result.pose:  # the yaw up to the fitted shape's symmetry: free (a body of revolution) or a set
+            out["yaw_deg"] = round(result.pose["yaw_deg"], 3)
+            out["yaw_free"] = result.pose.get("yaw_free", False)
+            if not out["yaw_free"]:
+                out["equivalent_yaws_deg"] = [round(e["yaw_deg"], 3) for e in result.pose.get("equivalent", [])]
         emit(out, json_out)
         sys.stdout.flush()
 

@@ -283,7 +283,10 @@ class Problem:
         r0 = float(torch.linalg.vector_norm(v - c0, dim=1).max()) * 2.0 / L0
         return {"scale": r_t / max(r0, 1e-12), "t": tuple(float(x) for x in c_t)}
 
-    def pose_json(self, x: torch.Tensor, discrete: Mapping[str, int] | None = None) -> dict:
+    def pose_json(self, x: torch.Tensor, discrete: Mapping[str, int] | None = None, symmetry: bool = False) -> dict:
+        """The pose as JSON; with ``symmetry``, also the turns that map the posed shape onto itself
+        (:func:`ipm.optim.symmetry.yaw_symmetry`), whether the yaw is free (a body of revolution) and the
+        equivalent poses (``equivalent``: one per turn; a revolution's every 45 degrees)."""
         _, t, yaw, scale, _ = self.decode(x.detach().double())
         cam = self.camera_triple(x.detach().double())
         c0, L0 = self.frame(discrete or {})
@@ -291,6 +294,15 @@ class Problem:
                "canonical_center": [float(v) for v in c0], "canonical_size": float(L0)}
         if cam is not None:
             out["camera"] = {"elevation_deg": float(cam[0]), "distance": float(cam[1]), "fov_deg": float(cam[2])}
+        if symmetry:
+            from ipm.optim.symmetry import equivalent_poses, yaw_symmetry
+
+            with torch.no_grad():
+                m = self.mesh_world(x.detach().double(), dict(discrete or {}))
+            sym = yaw_symmetry(m.verts.double().cpu().numpy(), m.faces.cpu().numpy())
+            out["symmetry"] = sym.to_json()
+            out["yaw_free"] = sym.kind == "revolution"
+            out["equivalent"] = equivalent_poses(sym, float(yaw), t.tolist())
         return out
 
     # -- geometry --------------------------------------------------------------------------------
