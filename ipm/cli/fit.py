@@ -38,6 +38,15 @@ def register(app: typer.Typer) -> None:
         intrinsics: Annotated[Path | None, typer.Option(help=(
             "the photo's camera: JSON {fx, fy, cx, cy, width, height} or a YAML as ClearGrasp ships it"))] = None,
         size: Annotated[int, typer.Option(help="photo: pixels a side of the square crop the fit sees")] = 128,
+        shape: Annotated[Path | None, typer.Option(help=(
+            "a binary image (PNG, shape > 127) to fit a 2D tree to (GEN: a tree file with a 2D root): the shape "
+            "itself, or with --profile a body of revolution's side view"))] = None,
+        profile: Annotated[bool, typer.Option("--profile", help=(
+            "--shape: the image is the side silhouette of revolve(tree); the fit is the profile, lifted to 3D "
+            "by revolve (lifted.json, mesh.obj)"))] = False,
+        extrude: Annotated[float | None, typer.Option(help=(
+            "--shape: lift the fitted 2D shape to 3D by extrude with this height, in the tree's units"))] = None,
+        steps: Annotated[int, typer.Option(help="--shape: Adam steps of the 2D fit")] = 400,
         ground: Annotated[bool, typer.Option("--ground/--no-ground", help=(
             "photo with depth and intrinsics: hold the camera's elevation at the plane the object stands on, "
             "measured in the depth around it"))] = True,
@@ -92,6 +101,19 @@ def register(app: typer.Typer) -> None:
         from ipm.optim import discrete as D
         from ipm.params import parse_assignment
 
+        if shape is not None or profile or extrude is not None:
+            if shape is None:
+                raise UsageError("--profile and --extrude: expected with a 2D fit's --shape IMAGE")
+            others = [n for n, v in (("--masks", masks), ("--target-mesh", target_mesh), ("--image", image),
+                                     ("--resume", resume)) if v is not None]
+            if others:
+                raise UsageError(f"--shape: a 2D fit takes no other target; got {' and '.join(others)}")
+            if gen is None or output is None:
+                raise UsageError("--shape: expected ipm fit TREE.json --shape IMAGE -o RUN_DIR")
+            _fit_2d(gen, shape, output, profile=profile, extrude=extrude, steps=steps, loss=loss,
+                    transport={k: v for k, v in (("blur", blur), ("dustbin", dustbin)) if v is not None},
+                    seed=seed, json_out=json_out)
+            return
         if resume is None and output is None:
             raise UsageError("expected -o RUN_DIR (or --resume RUN_DIR)")
         if resume is not None and output is not None and output != resume:
@@ -191,6 +213,69 @@ def register(app: typer.Typer) -> None:
                 out["equivalent_yaws_deg"] = [round(e["yaw_deg"], 3) for e in result.pose.get("equivalent", [])]
         emit(out, json_out)
         sys.stdout.flush()
+
+
+def _fit_2d(tree_file: str, image: Path, output: Path, *, profile: bool, extrude: float | None, steps: int,
+            loss: str, transport: dict, seed: int, json_out: bool) -> None:
+    """``ipm fit TREE.json --shape IMAGE [--profile | --extrude H] -o RUN_DIR``: a 2D tree fitted to a binary
+    image (ipm.optim.fit2d), written atomically: tree.json (the fitted 2D tree), result.json, overlay.png,
+    and for a lifted fit lifted.json and mesh.obj."""
+    import torch
+
+    from ipm.errors import InputError
+    from ipm.files import staged_directory, write_text
+    from ipm.io.masks import read_mask
+    from ipm.losses import TransportSettings
+    from ipm.optim.fit2d import Fit2DSettings, fit_2d, lifted
+    from ipm.sdf.tree import load_tree, tree_from_json, tree_to_json
+
+    if not tree_file.endswith(".json"):
+        raise UsageError(f"--shape: expected a tree file (.json) with a 2D root, got {tree_file!r}")
+    if not image.is_file():
+        raise UsageError(f"--shape: file not found: {image}")
+    if profile and extrude is not None:
+        raise UsageError("--profile and --extrude: a profile is lifted by revolve; give one of them")
+    if extrude is not None and not (0 < extrude < float("inf")):
+        raise UsageError(f"--extrude: expected a positive height, got {extrude}")
+    if steps < 1:
+        raise UsageError(f"--steps: expected at least 1, got {steps}")
+    if output.exists() and (not output.is_dir() or any(output.iterdir())):
+        raise UsageError(f"run folder {output} exists and is not an empty folder; choose a new folder")
+    tree = load_tree(tree_file, dim=None)
+    if tree.dim != 2:
+        raise UsageError(f"--shape: expected a tree with a 2D root (a 2D fit), got a 3D {tree.root.type_name}; "
+                         "3D trees fit to --masks, --image or --target-mesh")
+    mask = read_mask(image)
+    torch.manual_seed(seed)
+    try:
+        settings = Fit2DSettings(mode="profile" if profile else "shape", steps=steps, loss=loss,
+                                 transport=TransportSettings(**transport)).check()
+    except TypeError as e:
+        raise UsageError(f"2D fit settings: {e}") from None
+    try:
+        res = fit_2d(tree, mask, settings)
+    except InputError as e:
+        raise UsageError(f"--shape {image}: {e}") from None
+    out = {"run": str(output), **res.to_json()}
+    with staged_directory(output) as tmp:
+        write_text(tmp / "tree.json", json.dumps(tree_to_json(res.tree), indent=1) + "\n")
+        from ipm.viz.overlay import overlay
+
+        overlay(mask, res.mask, title=f"2D fit ({res.mode}): target red, fit green").save(tmp / "overlay.png", "PNG")
+        files = {"tree": "tree.json", "overlay": "overlay.png"}
+        if profile or extrude is not None:
+            from ipm.generators.sdftree import SdfTreeGenerator
+            from ipm.io.export import export_mesh
+
+            data = lifted(res, extrude)
+            write_text(tmp / "lifted.json", json.dumps(data, indent=1) + "\n")
+            gen3 = SdfTreeGenerator(tree_from_json(data), "sdftree", "lifted.json")
+            export_mesh(gen3.to_mesh(gen3.spec.defaults(), resolution=128), tmp / "mesh.obj", sidecar=False)
+            files.update(lifted="lifted.json", mesh="mesh.obj")
+        out["files"] = files
+        out["settings"] = {"mode": settings.mode, "steps": settings.steps, "loss": settings.loss, "seed": seed}
+        write_text(tmp / "result.json", json.dumps(out, indent=1) + "\n")
+    emit({k: out[k] for k in ("run", "mode", "iou", "loss", "seconds", "pose")}, json_out)
 
 
 def _run_generator(run_dir: Path) -> str:

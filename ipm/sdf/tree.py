@@ -28,13 +28,16 @@ class Tree:
     (counts, axes) are baked into the nodes and changed with :meth:`with_values`.
     """
 
-    def __init__(self, root: Node):
+    def __init__(self, root: Node, *, dim: int = 3):
         if not isinstance(root, Node):
             raise InputError(f"expected an SDF node as the tree root, got {type(root).__name__}")
-        if root.out_dim != 3:
+        if root.out_dim != dim and dim == 3:
             raise InputError(f"node root ({root.type_name}): the root must be a 3D node, got a 2D node; "
                              "lift 2D shapes with extrude or revolve")
+        if root.out_dim != dim:
+            raise InputError(f"node root ({root.type_name}): expected a {dim}D node, got a {root.out_dim}D node")
         self.root = root
+        self.dim = dim
         visits = T.preorder(root)
         self.nodes: list[tuple[Node, str]] = [(v.node, v.path) for v in visits]
         self.spec, _, self._offsets = T.flat_spec(visits)
@@ -56,7 +59,7 @@ class Tree:
         return self.spec.defaults()
 
     def sdf(self, theta: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:
-        """Signed distance ``(...)`` at ``points: (..., 3)`` for ``theta: (n,)`` (None: stored values).
+        """Signed distance ``(...)`` at ``points: (..., dim)`` for ``theta: (n,)`` (None: stored values).
 
         ``theta`` is cast to the points' dtype, so float64 points give a float64 evaluation.
         """
@@ -76,7 +79,7 @@ class Tree:
     def with_values(self, values: Mapping[str, object]) -> Tree:
         """A new tree with some parameters (continuous or discrete) replaced by name."""
         full = self.spec.validate(values)
-        return Tree(T.rebuild(self.root, iter(full[p.name] for p in self.spec.params)))
+        return Tree(T.rebuild(self.root, iter(full[p.name] for p in self.spec.params)), dim=self.dim)
 
     def with_theta(self, theta: torch.Tensor) -> Tree:
         """A new tree storing ``theta: (n,)`` as its continuous values."""
@@ -160,15 +163,16 @@ def from_flat(data: Mapping) -> Node:
     return T.from_flat(data, NODES)
 
 
-def tree_from_json(data: Mapping) -> Tree:
-    """A tree from either file form: nested (``{"node": ...}``, optionally under ``"tree"``) or flat."""
+def tree_from_json(data: Mapping, dim: int | None = 3) -> Tree:
+    """A tree from either file form: nested (``{"node": ...}``, optionally under ``"tree"``) or flat; its
+    root ``dim``-dimensional (None: either, a 2D tree for 2D fits)."""
     if not isinstance(data, Mapping):
         raise InputError(f"tree file: expected a JSON object, got {type(data).__name__}")
     if "structure" in data:
-        return Tree(from_flat(data))
-    if "tree" in data:
-        data = data["tree"]
-    return Tree(node_from_dict(data))
+        root = from_flat(data)
+    else:
+        root = node_from_dict(data["tree"] if "tree" in data else data)
+    return Tree(root, dim=root.out_dim if dim is None else dim)
 
 
 def tree_to_json(tree: Tree | Node, *, flat: bool = False) -> dict:
@@ -177,9 +181,10 @@ def tree_to_json(tree: Tree | Node, *, flat: bool = False) -> dict:
     return to_flat(root) if flat else {"tree": node_to_dict(root)}
 
 
-def load_tree(path) -> Tree:
-    """Read a tree file (nested or flat JSON); :class:`InputError` with a one-line reason on failure."""
-    return tree_from_json(T.read_json(path, "tree file"))
+def load_tree(path, dim: int | None = 3) -> Tree:
+    """Read a tree file (nested or flat JSON; ``dim``: see :func:`tree_from_json`); :class:`InputError` with
+    a one-line reason on failure."""
+    return tree_from_json(T.read_json(path, "tree file"), dim)
 
 
 __all__ = ["EVAL_CHUNK", "Tree", "from_flat", "load_tree", "node_from_dict", "node_to_dict", "to_flat",
