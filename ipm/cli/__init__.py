@@ -23,7 +23,7 @@ import typer
 
 # Command modules, in the order of `ipm --help`.
 COMMANDS = ["list_cmd", "generate", "jacobian", "render", "mask", "fit", "convert", "subdivide", "train_subdivision",
-            "bench"]
+            "vectorize", "bench"]
 
 app = typer.Typer(
     name="ipm",
