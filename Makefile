@@ -67,10 +67,19 @@ table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint /
 table-subdiv-fit: $(STAMP) ## fits rendering a subdivided coarse level of detail against finer ones (real mug), results/subdiv_fit/
 	$(call run_bench,subdiv_fit,subdiv_fit)
 
+table-curves: $(STAMP) ## vectorizing 22 line drawings with exact curves: ipm, skeleton, potrace, results/table_curves/ (about a minute)
+	$(BIN)/python -m benchmarks.table_curves results/table_curves
+
+bench-transport: $(STAMP) ## soft IoU against sinkhorn / sliced where fit and target do not overlap, results/transport.md (about 8 minutes)
+	$(BIN)/python -m benchmarks.transport -o results/transport.md
+
+bench-profile: $(STAMP) ## real vessels' side views: 2D profiles fitted and revolved, results/profile_fit.md (about a minute)
+	$(BIN)/python -m benchmarks.profile_fit -o results/profile_fit.md
+
 table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
 	$(BIN)/python -m benchmarks.table_convert results/table_convert
 
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-subdiv-fit table-convert clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert clean

@@ -197,3 +197,29 @@ def test_cli_a_3d_tree_is_refused_for_a_shape(tmp_path):
     r = subprocess.run([sys.executable, "-m", "ipm", "fit", str(tree), "--shape", str(img), "-o",
                         str(tmp_path / "run")], capture_output=True, text=True)
     assert r.returncode == 2 and "expected a tree with a 2D root" in r.stderr, r.stderr
+
+
+def test_a_profile_placed_in_the_view_world_matches_the_solid():
+    from ipm.generators.sdftree import SdfTreeGenerator
+    from ipm.metrics import fscore
+    from ipm.optim.fit2d import profile_start
+    from ipm.render.camera import orbit_camera
+    from ipm.render.raster import rasterize_mesh
+    from ipm.types import TriMesh
+
+    gen = SdfTreeGenerator(tree_from_json({"node": "translate", "params": {"x": 0.1, "y": -0.6, "z": 0.0},
+                                           "children": [{"node": "revolve", "params": {"offset": 0.0},
+                                                         "children": [polygon(VASE)]}]}))
+    truth = gen.to_mesh(gen.spec.defaults(), resolution=96)
+    size, dist, fov = 128, 60.0, 2.2
+    cam = orbit_camera(0.0, 0.0, dist, fov_deg=fov, width=size)
+    mask = rasterize_mesh(TriMesh(truth.verts.double(), truth.faces), cam.to(torch.float64)).mask.numpy()
+    start = profile_start(mask, 10)
+    assert start.dim == 2 and len(start.spec.continuous) == 20
+    r = fit_2d(start, mask, Fit2DSettings(mode="profile", steps=250))
+    k = size / (2 * dist * math.tan(math.radians(fov / 2)))
+    placed = SdfTreeGenerator(tree_from_json(lifted(r, pixels_per_unit=k, center_px=(size / 2, size / 2))))
+    solid = placed.to_mesh(placed.spec.defaults(), resolution=96)
+    assert fscore(solid, truth, 0.03, normalize=False) > 0.9
+    with pytest.raises(InputError, match="takes a profile fit and the view's centre"):
+        lifted(r, pixels_per_unit=k)

@@ -13,7 +13,11 @@
 5. Subdivision (issue #14): the fitted mug's coarse mesh (the generator's low level of detail)
    subdivided two levels by midpoint, Loop and neural subdivision (the shipped weights), each scored by
    its distance to the generator's own surface at 4x the detail.
-6. The universal SDF generator: the shipped trees meshed, their Jacobians checked against float64
+6. Curves and 2D fits (issue #15): the side silhouette of a real bottle scan
+   (``../shared/data/real/vessels/trimesh_fuze_bottle.obj``), seen from far away, fitted by a 12-point 2D
+   profile that is then revolved into a solid and scored against the scan; the silhouette's outline drawn
+   as a 3-pixel line and vectorized (``ipm.curves``) into an SVG.
+7. The universal SDF generator: the shipped trees meshed, their Jacobians checked against float64
    finite differences.
 
 Run: ``python -m ipm.cli.demo [OUT_DIR] [--budget N] [--size S]`` (what ``make demo`` does).
@@ -30,6 +34,8 @@ import numpy as np
 import torch
 
 MUG = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply"
+# the data README says Y up; its long axis is Z (experiments/table1.toml)
+BOTTLE = MUG.parent / "trimesh_fuze_bottle.obj"
 
 
 def fit_real_mug(out: Path, budget: int, size: int) -> dict:
@@ -179,6 +185,61 @@ def subdivision_showcase(out: Path) -> dict:
     return rows
 
 
+def curves_showcase(out: Path) -> dict:
+    """The real bottle's side view: a 2D profile fitted and revolved, scored against the scan; the outline
+    of the same silhouette drawn as a line and vectorized."""
+    import cv2
+    from skimage.measure import find_contours
+
+    from ipm.curves import VectorizeSettings, render_strokes, to_svg, vectorize
+    from ipm.files import write_text
+    from ipm.generators.sdftree import SdfTreeGenerator
+    from ipm.io.export import export_mesh
+    from ipm.io.masks import write_mask
+    from ipm.io.meshes import load_mesh
+    from ipm.metrics import shape_scores
+    from ipm.optim.fit2d import Fit2DSettings, fit_2d, lifted, profile_start
+    from ipm.render.camera import orbit_camera
+    from ipm.render.raster import rasterize_mesh
+    from ipm.sdf.tree import tree_from_json
+    from ipm.viz.overlay import overlay
+
+    d = out / "curves"
+    d.mkdir(exist_ok=True)
+    scan = load_mesh(BOTTLE, up="z")
+    size, dist, fov = 192, 60.0, 2.2  # nearly orthographic
+    cam = orbit_camera(0.0, 0.0, dist, fov_deg=fov, width=size)
+    mask = rasterize_mesh(scan, cam.to(torch.float64)).mask.numpy()
+    write_mask(d / "bottle_side.png", mask)
+    res = fit_2d(profile_start(mask, 12), mask, Fit2DSettings(mode="profile", steps=400))
+    overlay(mask, res.mask, title="profile fit: target red, fit green").save(d / "profile_overlay.png", "PNG")
+    k = size / (2 * dist * np.tan(np.radians(fov / 2)))
+    tree = lifted(res, pixels_per_unit=k, center_px=(size / 2, size / 2))
+    write_text(d / "bottle_lifted.json", json.dumps(tree, indent=1) + "\n")
+    gen = SdfTreeGenerator(tree_from_json(tree))
+    solid = gen.to_mesh(gen.spec.defaults(), resolution=128)
+    export_mesh(solid, d / "bottle_revolved.obj", sidecar=False)
+    sc = shape_scores(solid, scan, normalize=False)
+    # the silhouette's outline as a line drawing (anti-aliased, 3 px)
+    ink = np.zeros((size, size), np.uint8)
+    for c in find_contours(mask.astype(float), 0.5):
+        pts = np.round(c[:, ::-1] * 16).astype(np.int32)  # (x, y), 4 bits of subpixel
+        cv2.polylines(ink, [pts], True, 255, thickness=3, lineType=cv2.LINE_AA, shift=4)
+    ink_f = ink.astype(np.float64) / 255.0
+    write_mask(d / "outline.png", ink_f > 0.5)
+    t0 = time.perf_counter()
+    v = vectorize(ink_f, VectorizeSettings())
+    secs = time.perf_counter() - t0
+    write_text(d / "outline.svg", to_svg(v))
+    strokes = render_strokes(v, v.size, v.width)
+    inked = ink_f > 0.5
+    return {"profile_iou": res.iou, "profile_s": round(res.seconds, 1), "fscore@0.02": sc.fscore_002,
+            "chamfer_l1": sc.chamfer_l1, "iou_3d": sc.iou_3d, "curves": len(v.curves),
+            "closed": sum(c.closed for c in v.curves), "junctions": len(v.junctions), "endpoints": len(v.endpoints),
+            "rerender_iou": float((strokes & inked).sum() / max((strokes | inked).sum(), 1)),
+            "vectorize_s": round(secs, 1)}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description="ipm demo")
     ap.add_argument("out", nargs="?", default="results/demo")
@@ -211,6 +272,13 @@ def main() -> None:
         r = sub[name]
         print(f"  {name:8s} {sub['coarse_vertices']} -> {r['vertices']} vertices in {r['ms']} ms: distance to the "
               f"finer surface mean {r['mean']:.4f}, max {r['max']:.4f}")
+    print("curves and 2D fits (#15): a real bottle's side view, its profile revolved; its outline vectorized ...",
+          flush=True)
+    cv = curves_showcase(out)
+    print(f"  profile fit: side-view IoU {cv['profile_iou']:.3f} in {cv['profile_s']} s; revolved against the scan: "
+          f"F-score @0.02 {cv['fscore@0.02']:.3f}, Chamfer-L1 {cv['chamfer_l1']:.4f}, 3D IoU {cv['iou_3d']:.3f}")
+    print(f"  outline vectorized in {cv['vectorize_s']} s: {cv['curves']} curve(s) ({cv['closed']} closed), "
+          f"{cv['junctions']} junctions, {cv['endpoints']} endpoints; SVG re-rendered IoU {cv['rerender_iou']:.3f}")
     print("universal SDF generator: meshes and Jacobians ...", flush=True)
     for name, r in sdf_showcase(out).items():
         print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
@@ -221,6 +289,8 @@ def main() -> None:
     print("  beyond_silhouettes/: photo_mask.png and its overlay; the fit's deferred shading, depth and normals;")
     print("  beyond_silhouettes/photo_fit/overlay_photo.png (the photo fit's outline over the photo), result.json")
     print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
+    print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
+          "bottle_revolved.obj; outline.png and outline.svg")
 
 
 if __name__ == "__main__":

@@ -241,15 +241,48 @@ def fit_2d(tree: Tree, mask: np.ndarray, settings: Fit2DSettings = Fit2DSettings
                        settings.mode, pred)
 
 
-def lifted(result: Fit2DResult, extrude: float | None = None) -> dict:
+def lifted(result: Fit2DResult, extrude: float | None = None, *, pixels_per_unit: float | None = None,
+           center_px: tuple[float, float] | None = None) -> dict:
     """The 3D tree (nested JSON) of a 2D fit: ``profile``: ``revolve`` of the fitted profile; ``shape``:
-    ``extrude`` by ``extrude`` (tree units; required). In the tree's units: the image's pixels per unit are
-    ``result.pose["scale"]``."""
+    ``extrude`` by ``extrude`` (tree units; required). In the tree's units (the image's pixels per unit are
+    ``result.pose["scale"]``), or, with ``pixels_per_unit`` (an orthographic view's pixels per world unit)
+    and ``center_px`` (the image point (x, y) of the world's origin, y up in the world), scaled and moved
+    into that world: the profile's axis at its column, its base at its row, in the plane z = 0."""
     from ipm.sdf.tree import node_to_dict
 
     child = node_to_dict(result.tree.root)
     if result.mode == "profile":
-        return {"tree": {"node": "revolve", "params": {"offset": 0.0}, "children": [child]}}
-    if extrude is None:
+        solid = {"node": "revolve", "params": {"offset": 0.0}, "children": [child]}
+    elif extrude is None:
         raise InputError("2D fit: a shape fit is lifted by extrude with a height; none given")
-    return {"tree": {"node": "extrude", "params": {"height": float(extrude)}, "children": [child]}}
+    else:
+        solid = {"node": "extrude", "params": {"height": float(extrude)}, "children": [child]}
+    if pixels_per_unit is not None:
+        if result.mode != "profile" or center_px is None:
+            raise InputError("2D fit: placing in a view's world takes a profile fit and the view's centre")
+        pose = result.pose
+        solid = {"node": "translate", "params": {"x": (pose["tx"] - center_px[0]) / pixels_per_unit,
+                                                 "y": (center_px[1] - pose["ty"]) / pixels_per_unit, "z": 0.0},
+                 "children": [{"node": "scale", "params": {"factor": pose["scale"] / pixels_per_unit},
+                               "children": [solid]}]}
+    return {"tree": solid}
+
+
+def profile_start(mask: np.ndarray, points: int = 12) -> Tree:
+    """A start for a profile fit to the side view ``mask (H, W)``: a closed polygon of ``points`` points (the
+    axis, the base, the side in equal steps) as tall, relative to its radius, as the mask is relative to its
+    half width (the bounding cylinder)."""
+    if points < 4:
+        raise InputError(f"2D fit: expected a profile of at least 4 points, got {points}")
+    m = np.asarray(mask) > 0.5
+    rows, cols = np.nonzero(m.any(1))[0], np.nonzero(m.any(0))[0]
+    if len(rows) == 0:
+        raise InputError("2D fit: the mask is empty: expected some shape pixels (> 0.5)")
+    height = (rows.max() + 1 - rows.min()) / max(0.5 * (cols.max() + 1 - cols.min()), 0.5)
+    pts = [(0.0, 0.0)] + [(1.0, height * k / (points - 3)) for k in range(points - 2)] + [(0.0, height)]
+    params = {}
+    for i, (x, y) in enumerate(pts):
+        params[f"x{i}"], params[f"y{i}"] = float(x), float(y)
+    from ipm.sdf.tree import tree_from_json
+
+    return tree_from_json({"node": "polygon", "size": points, "params": params}, dim=None)
