@@ -63,7 +63,7 @@ def test_a_strategy_from_a_new_module(tmp_path, monkeypatch, target):
 
 def test_a_mask_loss_from_a_new_module(tmp_path, monkeypatch, target):
     name, pkg = "throwaway_l1", "throwaway_losses"
-    with pytest.raises(InputError, match="loss: expected one of iou, mse"):
+    with pytest.raises(InputError, match=r"loss: expected a mask loss \(iou, mse"):
         FitSettings(loss=name).check()
     with throwaway_member(LOSSES, name, LOSS.format(name=name), tmp_path, monkeypatch, pkg):
         assert name in LOSSES

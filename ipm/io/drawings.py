@@ -16,18 +16,9 @@ from ipm.errors import InputError
 def read_drawing(path: str | Path) -> np.ndarray:
     """Ink (H, W) float64 in [0, 1], 1 = stroke, of the image at ``path``. :class:`InputError` if it is
     missing, not an image, or has no pixels."""
-    from PIL import Image, UnidentifiedImageError
+    from ipm.io.masks import read_image
 
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"drawing not found: {path}")
-    try:
-        with Image.open(path) as im:
-            im.load()
-            rgba = np.asarray(im.convert("RGBA"), dtype=np.float64) / 255.0
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-        raise InputError(f"drawing {path}: expected an image file (PNG, JPEG), got an unreadable file "
-                         f"({type(e).__name__})") from None
+    rgba = read_image(path, "drawing", "RGBA").astype(np.float64) / 255.0
     if rgba.shape[0] == 0 or rgba.shape[1] == 0:
         raise InputError(f"drawing {path}: expected an image with pixels, got {rgba.shape[1]} x {rgba.shape[0]}")
     grey = 0.299 * rgba[..., 0] + 0.587 * rgba[..., 1] + 0.114 * rgba[..., 2]  # ITU-R BT.601 luma

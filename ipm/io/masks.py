@@ -65,19 +65,26 @@ def read_mask(path: str | Path, soft: bool = False) -> np.ndarray:
     return arr > 127
 
 
-def read_photo(path: str | Path) -> np.ndarray:
-    """A photo (JPEG, PNG, ...) as ``(H, W, 3)`` uint8 RGB (alpha and palettes are converted)."""
+def read_image(path: str | Path, what: str, mode: str) -> np.ndarray:
+    """The image at ``path`` converted to Pillow ``mode`` ("RGB", "RGBA", "L") as a uint8 array; one-line
+    :class:`InputError` naming it as ``what`` if it is missing or not an image."""
     from PIL import Image, UnidentifiedImageError
 
     path = Path(path)
     if not path.is_file():
-        raise InputError(f"photo not found: {path}")
+        raise InputError(f"{what} not found: {path}")
     try:
         with Image.open(path) as im:
             im.load()
-            return np.asarray(im.convert("RGB"))
+            return np.asarray(im.convert(mode))
     except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-        raise InputError(f"photo {path}: expected an image file, got an unreadable file ({type(e).__name__})") from None
+        raise InputError(f"{what} {path}: expected an image file (PNG, JPEG), got an unreadable file "
+                         f"({type(e).__name__})") from None
+
+
+def read_photo(path: str | Path) -> np.ndarray:
+    """A photo (JPEG, PNG, ...) as ``(H, W, 3)`` uint8 RGB (alpha and palettes are converted)."""
+    return read_image(path, "photo", "RGB")
 
 
 def write_mask(path: str | Path, mask) -> Path:
