@@ -45,6 +45,36 @@ def open_arc() -> list[np.ndarray]:
     return [np.stack([t, 128 + 50 * np.sin(t / 30)], 1)]
 
 
+def curved_tee() -> list[np.ndarray]:
+    """A bent bar and a bent stem meeting it at (110, 100) (the benchmark's ``t_curved``: the fit ends
+    the stem's zero set a few pixels short of the bar)."""
+    u, v = np.array([1.0, 0.3]) / np.hypot(1.0, 0.3), np.array([-0.3, 1.0]) / np.hypot(0.3, 1.0)
+
+    def branch(d, bend, t):
+        return np.array([110.0, 100.0]) + t[:, None] * d + bend * t[:, None] ** 2 * np.array([-d[1], d[0]])
+    return [branch(u, -0.005, np.linspace(-80, 105, 4000)), branch(v, 0.006, np.linspace(0, 105, 3000))]
+
+
+def star() -> list[np.ndarray]:
+    """A closed four-pointed star outline (sharp convex tips, concave corners of about 100 degrees),
+    turned by 20 degrees: like the wind rose, one closed curve with no endpoints and no junctions."""
+    a = np.radians(20) + np.arange(8) * np.pi / 4
+    rad = np.where(np.arange(8) % 2 == 0, 95.0, 38.0)
+    corners = np.stack([128 + rad * np.cos(a), 128 + rad * np.sin(a)], 1)
+    corners = np.concatenate([corners, corners[:1]])
+    t = np.linspace(0, 1, 600)[:-1, None]
+    return [np.concatenate([a * (1 - t) + b * t for a, b in zip(corners[:-1], corners[1:])] + [corners[:1]])]
+
+
+def rectangle() -> list[np.ndarray]:
+    """A closed rectangle outline (160 x 100) turned by 10 degrees: four right-angled corners."""
+    a = np.radians(10)
+    turn = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+    corners = np.array([[-80, -50], [80, -50], [80, 50], [-80, 50], [-80, -50]]) @ turn.T + 128
+    t = np.linspace(0, 1, 1000)[:-1, None]
+    return [np.concatenate([a * (1 - t) + b * t for a, b in zip(corners[:-1], corners[1:])] + [corners[:1]])]
+
+
 def iou(v: Vectorized, ink: np.ndarray) -> float:
     drawn, mask = render_strokes(v, v.size, v.width), ink > 0.5
     return (drawn & mask).sum() / (drawn | mask).sum()
@@ -155,6 +185,25 @@ def test_an_x_crossing_is_one_junction_between_two_curves_that_run_straight_thro
         assert min(np.linalg.norm(t[ends] - c.points[[0, -1]], axis=1).sum()
                    for t in truth for ends in ([0, -1], [-1, 0])) < 4.0
     assert f_measure(v, truth, 0.01 * 256 * np.sqrt(2)) >= 0.95 and iou(v, ink) >= 0.9
+
+
+def test_a_curved_t_whose_stem_the_fit_ends_short_still_meets_the_bar():
+    truth = curved_tee()
+    ink = drawing(truth)
+    v = vectorize(ink, VectorizeSettings(steps=150))
+    assert len(v.junctions) == 1 and len(v.endpoints) == 3
+    np.testing.assert_allclose(v.junctions[0], [110, 100], atol=2.0)
+    assert f_measure(v, truth, 0.01 * 256 * np.sqrt(2)) >= 0.95 and iou(v, ink) >= 0.9
+
+
+@pytest.mark.parametrize("shape", [rectangle, star])
+def test_an_outline_with_sharp_corners_is_one_closed_curve(shape):
+    truth = shape()
+    ink = drawing(truth)
+    v = vectorize(ink, VectorizeSettings(steps=150))
+    assert len(v.curves) == 1 and v.curves[0].closed
+    assert len(v.junctions) == 0 and len(v.endpoints) == 0
+    assert f_measure(v, truth, 0.01 * 256 * np.sqrt(2)) >= 0.95 and iou(v, ink) >= 0.85
 
 
 def test_an_open_arc_is_one_curve_with_its_ends_where_the_centreline_ends():

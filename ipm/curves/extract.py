@@ -10,12 +10,17 @@
 3. Piece ends are matched within ``join`` pixels and chained into polylines; open polylines whose ends
    point at each other (turning by at most 60 degrees) across a gap of up to two cells are joined by the
    cubic Hermite curve along their end directions, if it runs on ink (where the fit's field only touches
-   zero, e.g. at the top of an arc, and leaves no zero crossing).
+   zero, e.g. at the top of an arc, and leaves no zero crossing). Then free ends within two cells of each
+   other are joined whatever their turn where ink connects them (:func:`join_corners`: a sharp corner of
+   an outline, where the fit ends both sides short of the corner), and crumbs shorter than 2 r beside
+   other curves are dropped.
 4. The polylines become a graph: wherever two of them (or distant parts of one) come close (within 1.5 r,
    or within 2 r + 2 with ink all the way between them: the two branches of a crossing's saddle, which
    marching squares separates) every stretch of curve there is cut and shares one node; a free end
-   within 2 r + 1 of another curve is snapped onto it (a T); nodes closer than r are merged; short spurs
-   (< 2 r + 2, the overshoot of a T's stem through its bar) are pruned.
+   within 2 r + 1 of another curve is snapped onto it (a T), else one that runs into another curve when
+   extended by up to 4 r + 4 within 45 degrees of its direction, on ink (a T whose stem the fit ended
+   short of the bar); nodes closer than r are merged; short spurs (< 2 r + 2, the overshoot of a T's stem
+   through its bar) are pruned; junctions joined by an edge shorter than 2 r + 2 are merged into one.
 5. Junctions are nodes of degree >= 3, placed where their arms' lines meet (a crossing: then at the
    centre of its ink), the arms redrawn straight near them; endpoints are nodes of degree 1 away from the
    image border, moved to r before the ink's end (a round cap inks r beyond its centreline). Curves run
@@ -223,6 +228,91 @@ def bridge_gaps(curves: list[tuple[np.ndarray, bool]], bridge: float,
         curves = [c for i, c in enumerate(curves) if i not in (ka, kb)] + [(joined, False)]
 
 
+def _end_direction(q: np.ndarray, r: float) -> np.ndarray:
+    """The outward unit direction at the end q[-1] of a polyline: the chord between its points about 1
+    and 1 + 3 r pixels back (past the hook a torn cell border may leave at the very end)."""
+    back = q[::-1]
+    s = _arc(back)
+    a, b = _at(back, s, min(1.0, 0.2 * s[-1])), _at(back, s, min(1.0 + 3.0 * r, 0.6 * s[-1]))
+    d = a - b
+    return d / (np.linalg.norm(d) + 1e-12)
+
+
+def _polyline(*pts: np.ndarray, step: float = 0.25) -> np.ndarray:
+    """Straight segments through ``pts``, sampled about ``step`` apart (ends included)."""
+    out = [np.asarray(pts[0], float)[None]]
+    for a, b in zip(pts[:-1], pts[1:], strict=True):
+        n = max(int(np.ceil(np.linalg.norm(b - a) / step)), 1)
+        t = np.linspace(0.0, 1.0, n + 1)[1:, None]
+        out.append(a * (1 - t) + b * t)
+    return np.concatenate(out)
+
+
+def join_corners(curves: list[tuple[np.ndarray, bool]], reach: float, r: float,
+                 ink: np.ndarray) -> list[tuple[np.ndarray, bool]]:
+    """Free ends within ``reach`` pixels of each other joined where ink connects them, whatever their
+    turn (after :func:`bridge_gaps`, which joins ends that point at each other): a sharp corner of an
+    outline, where the fit ends both sides a little before the corner (a kink of the zero set, or a sign
+    flip at a cell border), or the top of an arc whose field only touches zero. The join is the first
+    of these that runs on ink (>= 1/2): the two end directions extended to where they meet (a corner),
+    the cubic Hermite curve along them (a smooth turn), the straight segment; closest pairs first, a
+    curve joined to itself is closed. Before that, open curves shorter than 2 r lying within 2 r + 1 of
+    other curves are dropped (crumbs of the zero set at a corner or junction, not strokes)."""
+    from scipy.spatial import cKDTree
+
+    curves = [(np.asarray(p, float), c) for p, c in curves]
+    dropped: set[int] = set()
+    for k, (p, closed) in enumerate(curves):
+        others = [q for j, (q, _) in enumerate(curves) if j != k and j not in dropped]
+        if not closed and others and _length(p) < 2.0 * r:
+            if cKDTree(np.concatenate(others)).query(p)[0].max() <= 2.0 * r + 1.0:
+                dropped.add(k)
+    curves = [c for k, c in enumerate(curves) if k not in dropped]
+    refused: set[tuple] = set()
+    while True:
+        ends = []
+        for k, (p, closed) in enumerate(curves):
+            if closed or len(p) < 2:
+                continue
+            for side in (0, 1):
+                q = p if side == 1 else p[::-1]
+                ends.append((k, side, q[-1], _end_direction(q, r)))
+        best = None
+        for x in range(len(ends)):
+            for y in range(x + 1, len(ends)):
+                d = float(np.linalg.norm(ends[y][2] - ends[x][2]))
+                if not d < reach:
+                    continue
+                if ends[x][0] == ends[y][0] and _length(curves[ends[x][0]][0]) < 4.0 * reach:
+                    continue
+                if (tuple(ends[x][2]), tuple(ends[y][2])) in refused:
+                    continue
+                if best is None or d < best[0]:
+                    best = (d, ends[x], ends[y])
+        if best is None:
+            return curves
+        d, (ka, sa, qa, ta), (kb, sb, qb, tb) = best
+        options = []
+        m = np.stack([ta, -tb], axis=1)
+        if abs(np.linalg.det(m)) > 0.1:
+            ua, ub = np.linalg.solve(m, qb - qa)
+            if 0.0 < ua <= d + 2.0 * r and 0.0 < ub <= d + 2.0 * r:
+                options.append(_polyline(qa, qa + ua * ta, qb))
+        options += [_hermite_bridge(qa, ta, qb, tb), _polyline(qa, qb)]
+        link = next((o for o in options if on_ink(ink, o).all()), None)
+        if link is None:
+            refused.add((tuple(qa), tuple(qb)))
+            continue
+        link = link[1:-1]
+        pa = curves[ka][0] if sa == 1 else curves[ka][0][::-1]
+        if ka == kb:
+            curves[ka] = (np.concatenate([pa, link, pa[:1]]), True)
+            continue
+        pb = curves[kb][0] if sb == 0 else curves[kb][0][::-1]
+        joined = np.concatenate([pa, link, pb])
+        curves = [c for i, c in enumerate(curves) if i not in (ka, kb)] + [(joined, False)]
+
+
 def resample(pts: np.ndarray, spacing: float, closed: bool = False) -> np.ndarray:
     """A polyline (n, 2) resampled at equal arc length of about ``spacing`` pixels (ends kept)."""
     seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
@@ -273,6 +363,7 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
 
     r = half_width
     touch, snap, merge, spur = max(1.0, 1.5 * r), 2.0 * r + 1.0, max(1.5, r), 2.0 * r + 2.0
+    extend = 4.0 * r + 4.0
     reach = touch if ink is None else max(touch, 2.0 * r + 2.0)
     curves = [(resample(p, spacing, c), c) for p, c in curves if _length(p) > spacing]
     if not curves:
@@ -340,8 +431,12 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
             nid = nodes.add(p[i])
             cuts[k][i] = nid
             near = [s for s in tree.query_ball_point(p[i], snap) if apart(first + i, s, 2.0 * snap)]
+            s = None
             if near:
                 s = min(near, key=lambda s: float(np.sum((allpts[s] - p[i]) ** 2)))
+            elif ink is not None:
+                s = _ray_hit(p if i else p[::-1], first + i, tree, allpts, apart, extend, r, ink)
+            if s is not None:
                 ko, io = int(owner[s]), int(index[s])
                 nodes.pos[nid] = allpts[s].copy()
                 if io in cuts[ko]:
@@ -397,6 +492,7 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
         if len(keep) == len(edges):
             break
         edges = keep
+    edges = _contract(edges, pos, spur)
     deg = _degrees(edges)
     H, W = size
     border = r + 1.5
@@ -411,6 +507,52 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
                  and border < pos[n][1] < H - border]
     out = [(q, True) for q in loops] + _through(edges, pos, deg, r)
     return (out, np.array(junctions).reshape(-1, 2), np.array(endpoints).reshape(-1, 2))
+
+
+def _ray_hit(q: np.ndarray, end: int, tree, allpts: np.ndarray, apart, extend: float, r: float,
+             ink: np.ndarray) -> int | None:
+    """The sample of another curve (or of a distant part of this one) that the free end q[-1] (sample
+    ``end``) runs into when extended straight by up to ``extend`` pixels within 45 degrees of its
+    direction (the zero set of a stem often bends along the bar before it ends), on ink all the way (a T
+    whose stem the fit ended short of the bar): the nearest such sample, or None."""
+    out = _end_direction(q, r)
+    cand = np.array([s for s in tree.query_ball_point(q[-1], extend) if apart(end, s, 2.0 * extend)], int)
+    if not len(cand):
+        return None
+    v = allpts[cand] - q[-1]
+    along = v @ out
+    across = np.abs(v[:, 0] * out[1] - v[:, 1] * out[0])
+    ok = (along > 0) & (across <= np.maximum(0.5, along))
+    for s in cand[ok][np.argsort(np.hypot(along[ok], across[ok]))]:
+        if on_ink(ink, _polyline(q[-1], allpts[s])).all():
+            return int(s)
+    return None
+
+
+def _contract(edges: list[list], pos: dict, short: float) -> list[list]:
+    """Junctions joined by an edge shorter than ``short`` merged into one (at their mean), shortest
+    first: where several strokes meet, their ends snap onto each other at points a pixel or two apart,
+    which are one junction of the drawing, not a cluster of junctions of degree 3."""
+    while True:
+        deg = _degrees(edges)
+        short_ = [e for e in edges if e[0] != e[1] and deg[e[0]] >= 3 and deg[e[1]] >= 3
+                  and _length(e[2]) < short]
+        if not short_:
+            return edges
+        a, b, _ = min(short_, key=lambda e: _length(e[2]))
+        pos[a] = 0.5 * (pos[a] + pos[b])
+        out = []
+        for e in edges:
+            if {e[0], e[1]} == {a, b} and _length(e[2]) < short:
+                continue
+            e = [a if e[0] == b else e[0], a if e[1] == b else e[1], e[2].copy()]
+            out.append(e)
+        for e in out:
+            if e[0] == a:
+                e[2][0] = pos[a]
+            if e[1] == a:
+                e[2][-1] = pos[a]
+        edges = [e for e in out if not (e[0] == e[1] and _length(e[2]) < short)]
 
 
 def _arms(edges: list[list], n: int) -> list[tuple[list, int]]:

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from ipm.curves.bezier import fit_beziers
-from ipm.curves.extract import bridge_gaps, chain, network, resample, zero_pieces
+from ipm.curves.extract import bridge_gaps, chain, join_corners, network, resample, zero_pieces
 from ipm.curves.fit import fit_field
 from ipm.curves.hermite import gaussian_scale
 from ipm.curves.init import estimate_half_width, initial_data, skeleton
@@ -57,6 +57,7 @@ def vectorize(ink, settings: VectorizeSettings = VectorizeSettings()) -> Vectori
     pieces = zero_pieces(data, settings.cell, settings.samples, arr, torn=0.25 * gaussian_scale(r))
     chained = chain(pieces, join=max(1.0, 0.5 * r))
     bridged = bridge_gaps(chained, max(2.0 * settings.cell, 4.0 * r), arr)
+    bridged = join_corners(bridged, max(2.0 * settings.cell, 4.0 * r), r, arr)
     paths, junctions, endpoints = network(bridged, r, arr.shape, ink=arr)
     curves = []
     for pts, closed in paths:
