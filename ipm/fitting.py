@@ -183,7 +183,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     run_dir = Path(run_dir)
     x = best["x"].to(torch.float64)
     mesh = prob.mesh_world(x, best["discrete"]).detach()
-    pose = prob.pose_json(x, best["discrete"], symmetry=True)
+    pose = prob.pose_json(x, best["discrete"], symmetry=True, mesh=mesh)
     meta = {"generator": prob.gen.name, "params": result.params, "pose": pose}
     write_json(run_dir / "params.json", meta)
     export_mesh(mesh, run_dir / "mesh.glb", meta, sidecar=False)

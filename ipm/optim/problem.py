@@ -283,10 +283,12 @@ class Problem:
         r0 = float(torch.linalg.vector_norm(v - c0, dim=1).max()) * 2.0 / L0
         return {"scale": r_t / max(r0, 1e-12), "t": tuple(float(x) for x in c_t)}
 
-    def pose_json(self, x: torch.Tensor, discrete: Mapping[str, int] | None = None, symmetry: bool = False) -> dict:
+    def pose_json(self, x: torch.Tensor, discrete: Mapping[str, int] | None = None, symmetry: bool = False,
+                  mesh: TriMesh | None = None) -> dict:
         """The pose as JSON; with ``symmetry``, also the turns that map the posed shape onto itself
-        (:func:`ipm.optim.symmetry.yaw_symmetry`), whether the yaw is free (a body of revolution) and the
-        equivalent poses (``equivalent``: one per turn; a revolution's every 45 degrees)."""
+        (:func:`ipm.optim.symmetry.yaw_symmetry`; ``mesh``: the posed mesh if already made), whether the yaw
+        is free (a body of revolution) and the equivalent poses (``equivalent``: one per turn; a
+        revolution's every 45 degrees)."""
         _, t, yaw, scale, _ = self.decode(x.detach().double())
         cam = self.camera_triple(x.detach().double())
         c0, L0 = self.frame(discrete or {})
@@ -297,8 +299,10 @@ class Problem:
         if symmetry:
             from ipm.optim.symmetry import equivalent_poses, yaw_symmetry
 
-            with torch.no_grad():
-                m = self.mesh_world(x.detach().double(), dict(discrete or {}))
+            if mesh is None:
+                with torch.no_grad():
+                    mesh = self.mesh_world(x.detach().double(), dict(discrete or {}))
+            m = mesh
             sym = yaw_symmetry(m.verts.double().cpu().numpy(), m.faces.cpu().numpy())
             out["symmetry"] = sym.to_json()
             out["yaw_free"] = sym.kind == "revolution"
