@@ -67,7 +67,7 @@ table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint /
 table-subdiv-fit: $(STAMP) ## fits rendering a subdivided coarse level of detail against finer ones (real mug), results/subdiv_fit/
 	$(call run_bench,subdiv_fit,subdiv_fit)
 
-table-curves: $(STAMP) ## vectorizing 22 line drawings with exact curves: ipm, skeleton, potrace, results/table_curves/ (about a minute)
+table-curves: $(STAMP) ## vectorizing 22 line drawings with exact curves, clean and degraded: ipm, skeleton, potrace, results/table_curves/ (about 2 minutes)
 	$(BIN)/python -m benchmarks.table_curves results/table_curves
 
 bench-transport: $(STAMP) ## soft IoU against sinkhorn / sliced where fit and target do not overlap, results/transport.md (about 8 minutes)

@@ -19,12 +19,31 @@ Families (:func:`make_drawings`, deterministic; 22 drawings):
 * ``sdf``: outlines of 2D ``ipm.sdf`` trees (CSG of rects, circles, triangles, rounded rects; the
   ``wind_rose`` preset's 2D shape): the zero level set found by marching squares on an 8x finer grid,
   resampled and moved onto the level set by two Newton steps on the signed distance.
+
+Degraded copies (:func:`degraded`, :func:`make_degraded`; what scans and sketches look like): the same 22
+drawings with the same ground truth, the ink redrawn as
+
+1. strokes of a half-width varying smoothly along the curves between :data:`DEGRADE_HALF_WIDTH` = (1.0, 2.5)
+   px: ``w(x, y) = 1 + 1.5 f``, ``f`` a sum of :data:`WIDTH_MODES` = 6 random plane waves of wavelengths
+   48..128 px, scaled so that its least and greatest values on the drawing's true samples are 0 and 1
+   (every drawing spans the whole range; a smooth field of position, so the width is continuous at
+   junctions and around closed curves); the ink at a pixel is ``max_s clip(w_s + 0.5 - |p - s|, 0, 1)``
+   over the true samples ``s`` (a union of discs, rendered like the clean strokes);
+2. blurred by a Gaussian of sigma :data:`BLUR` = 0.7 px;
+3. laid on paper with a faint tone: ``1 - (1 - ink) (1 - b)``, ``b`` a smooth field (3 plane waves of
+   wavelengths 64..192 px) between 0 and :data:`PAPER` = 0.05;
+4. plus i.i.d. Gaussian noise of sigma :data:`NOISE` = 0.1 per pixel, then clipped to [0, 1].
+
+Every random choice comes from ``numpy.random.default_rng([seed, crc32(name)])``: a drawing and a seed
+give one image. The clean ink stays with the copy (``Drawing.clean``) for the re-render IoU, which compares
+with the clean strokes.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import zlib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -44,7 +63,8 @@ class Drawing:
     """One line drawing and its exact curve network.
 
     ink: ``(H, W) float`` in [0, 1], 1 = stroke; curves: dense samples ``(n_i, 2)`` per curve (x right,
-    y down, pixel centres at +0.5); closed: one flag per curve; junctions ``(j, 2)``, endpoints ``(e, 2)``.
+    y down, pixel centres at +0.5); closed: one flag per curve; junctions ``(j, 2)``, endpoints ``(e, 2)``;
+    clean: for a degraded copy, the clean drawing's ink (what the re-render IoU compares with).
     """
 
     name: str
@@ -54,11 +74,17 @@ class Drawing:
     closed: tuple[bool, ...]
     junctions: np.ndarray
     endpoints: np.ndarray
+    clean: np.ndarray | None = None     # a degraded copy's clean ink (the truth's strokes); None: ink is clean
 
     @property
     def samples(self) -> np.ndarray:
         """All curves' samples ``(n, 2)``."""
         return np.concatenate(self.curves)
+
+    @property
+    def truth_ink(self) -> np.ndarray:
+        """The clean strokes' ink (``ink`` itself for a clean drawing)."""
+        return self.ink if self.clean is None else self.clean
 
 
 def render_ink(curves, closed, size: tuple[int, int] = (SIZE, SIZE), half_width: float = HALF_WIDTH) -> np.ndarray:
@@ -343,3 +369,98 @@ QUICK = ("circle_r80", "x_straight", "net_0", "sdf_rect_circle")
 def quick_drawings() -> tuple[Drawing, ...]:
     """Four drawings covering closed, crossing, network and SDF outlines (the ``--quick`` set)."""
     return tuple(drawing(n) for n in QUICK)
+
+
+# -- degraded copies: what scans and sketches look like ------------------------------------------------------
+
+DEGRADE_HALF_WIDTH = (1.0, 2.5)   # px: least and greatest half-width along the curves
+WIDTH_MODES = 6                   # plane waves in the half-width field
+WIDTH_WAVELENGTH = (48.0, 128.0)  # px
+BLUR = 0.7                        # px: Gaussian sigma
+PAPER = 0.05                      # greatest paper tone (ink units)
+PAPER_WAVELENGTH = (64.0, 192.0)  # px
+NOISE = 0.1                       # sigma of the additive per-pixel Gaussian noise (ink units)
+
+
+def _waves(rng: np.random.Generator, xy: np.ndarray, modes: int, wavelengths: tuple[float, float]) -> np.ndarray:
+    """A sum of ``modes`` plane waves of random direction, wavelength and phase at points ``xy (n, 2)``."""
+    ang = rng.uniform(0.0, 2 * math.pi, modes)
+    k = 2 * math.pi / rng.uniform(*wavelengths, modes)
+    phase = rng.uniform(0.0, 2 * math.pi, modes)
+    amp = rng.uniform(0.5, 1.0, modes)
+    kv = np.stack([k * np.cos(ang), k * np.sin(ang)], axis=1)
+    return (amp * np.cos(xy @ kv.T + phase)).sum(axis=1)
+
+
+def _unit(v: np.ndarray, ref: np.ndarray) -> np.ndarray:
+    """``v`` scaled so that ``ref`` spans [0, 1]."""
+    lo, hi = float(ref.min()), float(ref.max())
+    return (v - lo) / max(hi - lo, 1e-12)
+
+
+def variable_width_ink(d: Drawing, half_widths: np.ndarray) -> np.ndarray:
+    """Strokes of a half-width given at each true sample (``half_widths (n,)``, aligned with ``d.samples``):
+    ``max_s clip(w_s + 0.5 - |p - s|, 0, 1)`` over the samples ``s`` -> ``(H, W)`` in [0, 1]."""
+    from scipy.spatial import cKDTree
+
+    H, W = d.ink.shape
+    s = d.samples
+    reach = float(half_widths.max()) + 0.5
+    yy, xx = np.mgrid[0:H, 0:W]
+    centres = np.stack([xx.ravel() + 0.5, yy.ravel() + 0.5], axis=1)
+    near = np.isfinite(cKDTree(s).query(centres, distance_upper_bound=reach)[0])
+    idx = np.nonzero(near)[0]
+    pairs = cKDTree(s).sparse_distance_matrix(cKDTree(centres[idx]), reach, output_type="ndarray")
+    value = np.clip(half_widths[pairs["i"]] + 0.5 - pairs["v"], 0.0, 1.0)
+    out = np.zeros(H * W)
+    np.maximum.at(out, idx[pairs["j"]], value)
+    return out.reshape(H, W)
+
+
+def degrade_layers(d: Drawing, seed: int = 0) -> dict[str, np.ndarray]:
+    """The degradation of clean drawing ``d`` step by step (see the module's docstring): ``half_widths``
+    per true sample, ``strokes`` (variable width), ``blurred``, ``paper`` (the tone ``b``), ``noise_free``
+    (blurred strokes on the paper), ``noise`` and ``ink`` = ``clip(noise_free + noise, 0, 1)``."""
+    from scipy.ndimage import gaussian_filter
+
+    rng = np.random.default_rng([seed, zlib.crc32(d.name.encode())])
+    H, W = d.ink.shape
+    s = d.samples
+    f = _waves(rng, s, WIDTH_MODES, WIDTH_WAVELENGTH)
+    lo, hi = DEGRADE_HALF_WIDTH
+    half_widths = lo + (hi - lo) * _unit(f, f)
+    strokes = variable_width_ink(d, half_widths)
+    blurred = np.clip(gaussian_filter(strokes, BLUR, mode="constant"), 0.0, 1.0)
+    yy, xx = np.mgrid[0:H, 0:W]
+    grid = np.stack([xx.ravel() + 0.5, yy.ravel() + 0.5], axis=1)
+    tone = _waves(rng, grid, 3, PAPER_WAVELENGTH)
+    paper = PAPER * _unit(tone, tone).reshape(H, W)
+    noise_free = 1.0 - (1.0 - blurred) * (1.0 - paper)
+    noise = rng.normal(0.0, NOISE, (H, W))
+    return {"half_widths": half_widths, "strokes": strokes, "blurred": blurred, "paper": paper,
+            "noise_free": noise_free, "noise": noise, "ink": np.clip(noise_free + noise, 0.0, 1.0)}
+
+
+def degrade(d: Drawing, seed: int = 0) -> Drawing:
+    """A degraded copy of clean drawing ``d``: the same truth, the ink of :func:`degrade_layers`, the clean
+    ink kept as ``clean``."""
+    if d.clean is not None:
+        raise ValueError(f"{d.name} is already degraded")
+    ink = degrade_layers(d, seed)["ink"]
+    return Drawing(d.name, d.family, ink, d.curves, d.closed, d.junctions, d.endpoints, clean=d.ink)
+
+
+@functools.cache
+def degraded(name: str, seed: int = 0) -> Drawing:
+    """The degraded copy of one drawing by name (cached; deterministic per name and seed)."""
+    return degrade(drawing(name), seed)
+
+
+def make_degraded(seed: int = 0) -> tuple[Drawing, ...]:
+    """All 22 drawings' degraded copies, in the clean set's order."""
+    return tuple(degraded(n, seed) for n in names())
+
+
+def quick_degraded(seed: int = 0) -> tuple[Drawing, ...]:
+    """The ``--quick`` set's degraded copies."""
+    return tuple(degraded(n, seed) for n in QUICK)

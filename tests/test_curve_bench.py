@@ -1,5 +1,6 @@
 """The vectorization benchmark (``make table-curves``): its metrics on exact cases, its drawings' ground
-truth against their ink, the two baselines on a circle, and a ``--quick`` run writing its table."""
+truth against their ink, the degraded copies (deterministic, truth kept on the ink, the documented noise),
+the two baselines on a circle, and a ``--quick`` run writing its tables."""
 
 from __future__ import annotations
 
@@ -19,7 +20,21 @@ from benchmarks.curve_metrics import (
     score,
     stroke_mask,
 )
-from benchmarks.drawings import HALF_WIDTH, SIZE, drawing, make_drawings, names
+from benchmarks.drawings import (
+    BLUR,
+    DEGRADE_HALF_WIDTH,
+    HALF_WIDTH,
+    NOISE,
+    PAPER,
+    SIZE,
+    degrade,
+    degrade_layers,
+    degraded,
+    drawing,
+    make_degraded,
+    make_drawings,
+    names,
+)
 
 INK = np.zeros((256, 256))
 DIAG = math.hypot(256, 256)
@@ -152,6 +167,67 @@ def test_ground_truth_lies_on_the_ink():
     assert all(len(d.junctions) >= 1 and len(d.endpoints) >= 3 for d in net)
 
 
+# -- degraded copies ------------------------------------------------------------------------------------------
+
+def _under(d, values: np.ndarray) -> np.ndarray:
+    """``values (H, W)`` at the pixel under every true sample of ``d``."""
+    ij = np.clip(np.floor(d.samples).astype(int), 0, SIZE - 1)
+    return values[ij[:, 1], ij[:, 0]]
+
+
+def test_degraded_drawings_are_deterministic_per_seed():
+    a, b = degrade(drawing("net_2"), seed=0), degraded("net_2", seed=0)
+    assert np.array_equal(a.ink, b.ink)
+    c, e = degrade(drawing("net_2"), seed=1), degrade(drawing("x_curved"), seed=0)
+    assert not np.allclose(a.ink, c.ink) and not np.allclose(a.ink[:64, :64], e.ink[:64, :64])
+    assert a.name == "net_2" and np.array_equal(a.clean, drawing("net_2").ink)
+    with pytest.raises(ValueError, match="already degraded"):
+        degrade(a)
+
+
+def test_degraded_drawings_keep_their_truth_on_the_ink():
+    clean = make_drawings()
+    for c, d in zip(clean, make_degraded()):
+        assert d.name == c.name and d.ink.shape == (SIZE, SIZE) and 0.0 <= d.ink.min() and d.ink.max() <= 1.0
+        # the truth is the clean drawing's, untouched
+        assert all(np.array_equal(p, q) for p, q in zip(d.curves, c.curves)) and d.closed == c.closed
+        assert np.array_equal(d.junctions, c.junctions) and np.array_equal(d.endpoints, c.endpoints)
+        assert np.array_equal(d.truth_ink, c.ink) and (_under(d, d.truth_ink) > 0.5).all(), d.name
+        layers = degrade_layers(c, seed=0)
+        assert np.array_equal(layers["ink"], d.ink)
+        # before the noise, every true sample's pixel is ink (> 0.5; measured: >= 0.66 on all 22), and so
+        # is nearly every one after it (a 0.1 sigma noise pulls a few of the thinnest strokes' pixels under)
+        assert (_under(d, layers["noise_free"]) > 0.6).all(), d.name
+        assert (_under(d, d.ink) > 0.5).mean() > 0.97, d.name
+        lo, hi = DEGRADE_HALF_WIDTH
+        assert layers["half_widths"].min() == pytest.approx(lo) and layers["half_widths"].max() == pytest.approx(hi)
+        assert 0.0 <= layers["paper"].min() and layers["paper"].max() <= PAPER + 1e-12
+
+
+def test_degraded_noise_is_what_the_docstring_says():
+    import benchmarks.drawings as D
+
+    for value, text in ((NOISE, "sigma :data:`NOISE` = 0.1"), (BLUR, "sigma :data:`BLUR` = 0.7"),
+                        (PAPER, ":data:`PAPER` = 0.05")):
+        assert text in D.__doc__ and f"{value:g}" in text
+    assert f"{DEGRADE_HALF_WIDTH}".replace(" ", "") in D.__doc__.replace(" ", "").replace("\n", "")
+    c = drawing("s_sine")
+    layers = degrade_layers(c, seed=0)
+    assert np.array_equal(layers["ink"], np.clip(layers["noise_free"] + layers["noise"], 0.0, 1.0))
+    assert layers["noise"].std() == pytest.approx(NOISE, rel=0.02) and abs(layers["noise"].mean()) < 0.002
+    # measured on the clipped image itself, where clipping at 0 cannot bias it: on the paper away from the
+    # strokes, the share of pixels at least one (two) sigma above their noise-free value is the normal's
+    y, v = layers["ink"], layers["noise_free"]
+    paper = layers["blurred"] == 0.0
+    assert paper.mean() > 0.8
+    excess = (y - v)[paper]
+    assert (excess >= NOISE).mean() == pytest.approx(0.1587, abs=0.006)
+    assert (excess >= 2 * NOISE).mean() == pytest.approx(0.0228, abs=0.003)
+    # the width varies smoothly along the curve: adjacent samples (0.2 px apart) differ by < 0.05 px
+    w = layers["half_widths"]
+    assert np.abs(np.diff(w)).max() < 0.05
+
+
 # -- baselines -----------------------------------------------------------------------------------------------
 
 def _score(d, t):
@@ -186,3 +262,10 @@ def test_quick_run_writes_its_table(tmp_path):
     rows = (tmp_path / "rows.csv").read_text().splitlines()
     assert len(rows) == 1 + 4 * 4
     assert (tmp_path / "contact.png").stat().st_size > 10_000
+    # the degraded set: its own table, rows and sheets, and its means at the end of table.md
+    assert "## The degraded set: means over the drawings" in text
+    deg = (tmp_path / "table_degraded.md").read_text()
+    assert "Commit:" in deg and "*clean* strokes" in deg and all(f"| {m} |" in deg for m in ("ipm", "skeleton"))
+    assert len((tmp_path / "rows_degraded.csv").read_text().splitlines()) == 1 + 4 * 4
+    for png in ("contact_degraded.png", "inputs_degraded.png"):
+        assert (tmp_path / png).stat().st_size > 10_000

@@ -69,7 +69,7 @@ def test_masks_that_do_not_overlap_still_have_a_gradient_towards_each_other(name
     t = disk(28, 16, 4)
     cx = torch.tensor(4.0, dtype=torch.float64, requires_grad=True)
     pred = disk(cx, 16, 4)
-    assert float((pred * t).sum()) < 1e-8  # no overlap: soft IoU's gradient vanishes
+    assert float((pred * t).sum().detach()) < 1e-8  # no overlap: soft IoU's gradient vanishes
     (g_iou,) = torch.autograd.grad(L.soft_iou_loss(disk(cx, 16, 4), t), cx)
     assert abs(float(g_iou)) < 1e-8
     (g,) = torch.autograd.grad(L.LOSSES[name](pred, t), cx)
