@@ -259,3 +259,39 @@ def test_bad_settings_are_refused_in_one_line(kw, word):
 def test_bad_ink_is_refused(ink, word):
     with pytest.raises(InputError, match=word.replace("[", r"\[").replace("]", r"\]")):
         vectorize(ink)
+
+
+def test_clean_ink_leaves_a_clean_drawing_as_it_is():
+    from ipm.curves.clean import clean_ink
+
+    ink = drawing(tee())
+    c = clean_ink(ink)
+    assert not c.cleaned and c.ink is ink
+    np.testing.assert_array_equal(c.mask, ink > 0.5)
+
+
+def test_clean_ink_reads_the_noise_and_paper_and_gives_back_the_strokes(rng):
+    from ipm.curves.clean import clean_ink, paper_and_noise
+
+    ink = drawing(crossing())
+    yy = np.mgrid[0:256, 0:256][0] / 255.0
+    paper = 0.04 * yy                                    # a tone rising down the sheet
+    noisy = np.clip(ink + paper * (1 - ink) + rng.normal(0.0, 0.1, ink.shape), 0.0, 1.0)
+    level, sigma = paper_and_noise(noisy)
+    assert 0.07 < sigma < 0.13                           # clipped at 0 below the paper: read off the upper side
+    assert abs(float(np.median(level)) - 0.02) < 0.03
+    c = clean_ink(noisy)
+    truth = ink > 0.5
+    assert c.cleaned and 0.0 <= float(c.ink.min()) and float(c.ink.max()) <= 1.0
+    assert (c.mask & truth).sum() / (c.mask | truth).sum() > 0.8
+    assert float(np.abs(c.ink[~c.mask]).mean()) < 0.2 * float(np.abs(noisy[~truth]).mean())  # paper left clean
+
+
+def test_a_noisy_scan_vectorizes_like_the_clean_drawing(rng):
+    truth = curved_tee()
+    ink = drawing(truth)
+    noisy = np.clip(ink + 0.03 + rng.normal(0.0, 0.1, ink.shape), 0.0, 1.0)
+    v = vectorize(noisy, VectorizeSettings(steps=150))
+    assert len(v.junctions) == 1 and len(v.endpoints) == 3
+    np.testing.assert_allclose(v.junctions[0], [110, 100], atol=2.0)
+    assert f_measure(v, truth, 0.01 * 256 * np.sqrt(2)) >= 0.95 and iou(v, ink) >= 0.9  # the clean strokes

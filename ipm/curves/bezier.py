@@ -51,8 +51,11 @@ def _fit_one(pts: np.ndarray, u: np.ndarray, t0: np.ndarray, t1: np.ndarray) -> 
     if abs(det) > 1e-12:
         a1 = (X[0] * C[1, 1] - X[1] * C[0, 1]) / det
         a2 = (C[0, 0] * X[1] - C[1, 0] * X[0]) / det
-    if a1 < 1e-6 * chord or a2 < 1e-6 * chord or not np.isfinite(a1 + a2):
-        a1 = a2 = chord / 3.0  # Schneider's fallback (Wu and Barsky's heuristic)
+    arc = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+    if a1 < 1e-6 * chord or a2 < 1e-6 * chord or not np.isfinite(a1 + a2) or max(a1, a2) > arc:
+        # Schneider's fallback (Wu and Barsky's heuristic), also for arms longer than the polyline (a
+        # few points around a kink, whose least squares can throw a loop far out between the samples)
+        a1 = a2 = chord / 3.0
     return np.array([p0, p0 + a1 * t0, p3 + a2 * t1, p3])
 
 

@@ -8,6 +8,7 @@ import numpy as np
 import torch
 
 from ipm.curves.bezier import fit_beziers
+from ipm.curves.clean import clean_ink
 from ipm.curves.extract import bridge_gaps, chain, join_corners, network, resample, zero_pieces
 from ipm.curves.fit import fit_field
 from ipm.curves.hermite import gaussian_scale
@@ -47,7 +48,8 @@ def vectorize(ink, settings: VectorizeSettings = VectorizeSettings()) -> Vectori
     check_ink(ink, settings.cell)
     device = ink.device if isinstance(ink, torch.Tensor) else torch.device("cpu")
     arr = (ink.detach().cpu().numpy() if isinstance(ink, torch.Tensor) else np.asarray(ink)).astype(np.float64)
-    mask = arr > 0.5
+    cleaned = clean_ink(arr)
+    arr, mask = cleaned.ink, cleaned.mask
     skel = skeleton(mask)
     r = float(settings.width) if settings.width is not None else estimate_half_width(arr, skel)
     data0, inked = initial_data(arr, skel, settings.cell, r)
@@ -68,7 +70,7 @@ def vectorize(ink, settings: VectorizeSettings = VectorizeSettings()) -> Vectori
                             beziers=fit_beziers(pts, settings.bezier_tol, closed)))
     curves = tuple(curves)
     if settings.width is None and curves:
-        r = calibrate_width(curves, mask, r)
+        r = calibrate_width(curves, cleaned.strokes, r)
     log.debug("curves: %d curves, %d junctions, %d endpoints, r %.3f", len(curves), len(junctions),
               len(endpoints), r)
     return Vectorized(curves=curves, junctions=junctions, endpoints=endpoints, width=float(r),
