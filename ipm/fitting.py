@@ -248,3 +248,108 @@ def _photo_overlay(path: Path, prob, best: dict, photo) -> str:
     with atomic_path(path) as tmp:
         Image.fromarray(out).save(tmp, "PNG")
     return path.name
+
+
+STRUCTURE_CHECKPOINT = "checkpoint.json"
+STRUCTURE_TRAJECTORY = "structures.jsonl"
+STRUCTURE_RESOLUTION = 128   # mesh.obj: what `ipm generate tree.json` meshes at by default
+
+
+def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks: str | Path | None = None,
+                  start: str | Path | None = None, run_dir: str | Path | None = None, resume: bool = False,
+                  progress: Callable | None = None, device=None, **settings) -> dict:
+    """Recover a tree's structure and parameters (:mod:`ipm.optim.structure`) from a mesh (normalized to
+    DESIGN.md's unit sphere, as ``ipm fit --target-mesh``) or a mask set of K >= 2 views; ``start``: a tree
+    file to begin from. ``settings``: :class:`~ipm.optim.structure.StructureSettings` fields.
+
+    The run folder holds ``settings.json``, ``checkpoint.json`` (after every round), ``structures.jsonl``
+    (every tree tried: its edit, structure, nodes, IoU, score, evaluations, the tree), ``tree.json`` (the
+    recovered tree, nested, which ``ipm generate`` loads), ``mesh.obj`` (that tree meshed as ``ipm
+    generate`` does) and ``result.json``. ``resume=True`` continues after the last finished round and ends
+    where an uninterrupted run would. Returns ``result.json``'s content."""
+    from ipm.files import write_text
+    from ipm.io.runs import RESULT, SETTINGS, Trajectory, write_json
+    from ipm.optim.structure import StructureSettings, count_nodes, mask_samples, mesh_samples, primitive_counts
+    from ipm.optim.structure import search as run_search
+    from ipm.optim.structure.program import signature, structure
+    from ipm.sdf.tree import load_tree, tree_to_json
+
+    run_dir = Path(run_dir) if run_dir is not None else None
+    state = None
+    if resume:
+        if run_dir is None or not (run_dir / SETTINGS).is_file():
+            raise InputError(f"--resume: expected a run folder with {SETTINGS}, got {run_dir}")
+        saved = _read_run_json(run_dir / SETTINGS, run_dir)
+        if not isinstance(saved, dict) or "structure" not in saved:
+            raise InputError(f"--resume {run_dir}: expected the settings of a structure search in {SETTINGS}")
+        cfg = StructureSettings.from_json(saved["structure"])
+        files = saved.get("target") or {}
+        target_mesh, up, masks, start = files.get("target_mesh"), files.get("up", "y"), files.get("masks"), \
+            saved.get("start")
+        if (run_dir / STRUCTURE_CHECKPOINT).is_file():
+            state = _read_run_json(run_dir / STRUCTURE_CHECKPOINT, run_dir)
+    else:
+        cfg = StructureSettings(**settings)
+    cfg.check()
+    if (target_mesh is None) == (masks is None):
+        raise InputError("structure search: expected one target, a mesh or a mask set of K >= 2 views")
+    start_tree = None
+    if start is not None:
+        start_tree = tree_to_json(load_tree(start))["tree"]
+    frame = None
+    if target_mesh is not None:
+        from ipm.io.meshes import load_mesh
+        from ipm.metrics import mesh_arrays, unit_sphere_frame
+
+        raw = load_mesh(Path(target_mesh), up=up, normalize=False)
+        center, scale = unit_sphere_frame(mesh_arrays(raw)[0])
+        frame = {"center": [float(c) for c in center], "scale": float(scale)}
+        mesh = load_mesh(Path(target_mesh), up=up, normalize=True)
+        samples = mesh_samples(mesh, surface=cfg.surface, volume=cfg.volume, grid=cfg.grid, seed=cfg.seed)
+    else:
+        from ipm.io.fit_targets import TargetFiles, load_target
+
+        target, _ = load_target(TargetFiles(masks=str(masks)))
+        samples = mask_samples(target.masks.cpu().numpy(), target.cameras, volume=cfg.volume, grid=cfg.grid,
+                               seed=cfg.seed)
+    samples = samples.to(device=device, dtype=torch.float32)
+    sink = checkpoint = None
+    if run_dir is not None:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        write_json(run_dir / SETTINGS, {"structure": cfg.to_json(), "start": None if start is None else str(start),
+                                        "target": {"target_mesh": None if target_mesh is None else str(target_mesh),
+                                                   "up": up, "masks": None if masks is None else str(masks)}})
+        sink = Trajectory(run_dir / STRUCTURE_TRAJECTORY, keep=int(state["records"]) if state else 0)
+
+        def checkpoint(st: dict) -> None:
+            write_text(run_dir / STRUCTURE_CHECKPOINT, json.dumps(st) + "\n")
+    try:
+        res = run_search(samples, cfg, start=start_tree, state=state, checkpoint=checkpoint, record=sink,
+                         progress=progress)
+    finally:
+        if sink is not None:
+            sink.close()
+    out = {"structure": structure(res.tree), "nodes": count_nodes(res.tree), "primitives": primitive_counts(res.tree),
+           "adds": list(signature(res.tree)[0]), "cuts": list(signature(res.tree)[1]), "grid_iou": res.iou,
+           "score": res.score, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
+           "rounds": res.rounds, "stopped": res.stopped, "frame": frame}
+    if run_dir is not None:
+        from ipm.generators import get_generator
+        from ipm.io.export import export_mesh
+
+        write_json(run_dir / "tree.json", {"tree": res.tree})
+        gen = get_generator(str(run_dir / "tree.json"))
+        values = gen.spec.defaults()
+        export_mesh(gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION), run_dir / "mesh.obj", gen.metadata(values),
+                    sidecar=False)
+        out["run"] = str(run_dir)
+        write_json(run_dir / RESULT, out)
+    out["tree"] = res.tree
+    return out
+
+
+def _read_run_json(path: Path, run_dir: Path):
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as e:
+        raise InputError(f"--resume {run_dir}: expected JSON in {path.name}, got {e.msg} at line {e.lineno}") from None

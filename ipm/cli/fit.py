@@ -1,5 +1,6 @@
 """``ipm fit GEN (--masks DIR [--depth DIR] [--parts DIR] | --image PHOTO (--mask MASK | --box BOX) [--depth FILE]
-[--intrinsics FILE] | --target-mesh MESH) ... -o RUN_DIR``."""
+[--intrinsics FILE] | --target-mesh MESH) ... -o RUN_DIR``; ``ipm fit [START.json] --structure search
+(--target-mesh MESH | --masks DIR) -o RUN_DIR``: the tree's structure searched too."""
 
 from __future__ import annotations
 
@@ -56,7 +57,9 @@ def register(app: typer.Typer) -> None:
         camera: Annotated[str, typer.Option(help="known (cameras.json) or fit (recover elevation, "
                                                  "distance, FOV)")] = "known",
         discrete: Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")] = "memetic",
-        budget: Annotated[int, typer.Option(help="function evaluations (one render + loss each)")] = 1500,
+        budget: Annotated[int | None, typer.Option(help=(
+            "function evaluations (one render + loss each; --structure search: one Adam step or score of a "
+            "tree) (default 1500; --structure search: 8000)"))] = None,
         seed: SeedOpt = 0,
         preset: PresetOpt = None,
         loss: Annotated[str, typer.Option(help=(
@@ -91,6 +94,10 @@ def register(app: typer.Typer) -> None:
         polish: Annotated[float | None, typer.Option(help=(
             "share of the budget for the final refinement of the best candidates with every parameter free "
             "(default 0.15; a photo's details: 0.4)"))] = None,
+        structure: Annotated[str, typer.Option(help=(
+            "fixed: fit GEN's parameters; search: search the tree itself (which primitives, joined how) and its "
+            "parameters, from --target-mesh or --masks of 2+ views, starting from GEN (a tree file) if given; "
+            "writes tree.json, which ipm generate loads"))] = "fixed",
         resume: Annotated[Path | None, typer.Option(help="continue an interrupted run folder")] = None,
         library: LibraryOpt = None,
         device: DeviceOpt = "auto",
@@ -101,6 +108,16 @@ def register(app: typer.Typer) -> None:
         from ipm.optim import discrete as D
         from ipm.params import parse_assignment
 
+        if structure not in ("fixed", "search"):
+            raise UsageError(f"--structure: expected fixed or search, got {structure!r}")
+        if structure == "search" or (resume is not None and _is_structure_run(resume)):
+            others = [n for n, v in (("--image", image), ("--depth", depth), ("--parts", parts), ("--shape", shape),
+                                     ("--preset", preset)) if v is not None]
+            if others:
+                raise UsageError(f"--structure search: takes a mesh or masks only; got {' and '.join(others)}")
+            _fit_structure(gen, target_mesh, up, masks, output, resume, budget, seed, device, json_out)
+            return
+        budget = FIT_BUDGET if budget is None else budget
         if shape is not None or profile or extrude is not None:
             if shape is None:
                 raise UsageError("--profile and --extrude: expected with a 2D fit's --shape IMAGE")
@@ -276,6 +293,78 @@ def _fit_2d(tree_file: str, image: Path, output: Path, *, profile: bool, extrude
         out["settings"] = {"mode": settings.mode, "steps": settings.steps, "loss": settings.loss, "seed": seed}
         write_text(tmp / "result.json", json.dumps(out, indent=1) + "\n")
     emit({k: out[k] for k in ("run", "mode", "iou", "loss", "seconds", "pose")}, json_out)
+
+
+FIT_BUDGET = 1500
+
+
+def _is_structure_run(run_dir: Path) -> bool:
+    try:
+        return "structure" in json.loads((run_dir / "settings.json").read_text())
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, TypeError):
+        return False
+
+
+def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: Path | None, output: Path | None,
+                   resume: Path | None, budget: int, seed: int, device: str, json_out: bool) -> None:
+    """``ipm fit --structure search``: :func:`ipm.fitting.fit_structure` with a progress bar."""
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from ipm.fitting import fit_structure
+
+    if resume is None:
+        if output is None:
+            raise UsageError("expected -o RUN_DIR (or --resume RUN_DIR)")
+        given = [n for n, v in (("--masks", masks), ("--target-mesh", target_mesh)) if v is not None]
+        if len(given) != 1:
+            raise UsageError("--structure search: expected one target, --target-mesh MESH or --masks DIR; got "
+                             + (" and ".join(given) if given else "none"))
+        if target_mesh is not None and not target_mesh.is_file():
+            raise UsageError(f"--target-mesh: file not found: {target_mesh}")
+        if masks is not None and not masks.is_dir():
+            raise UsageError(f"--masks: folder not found: {masks}")
+        if start is not None and not Path(start).is_file():
+            raise UsageError(f"--structure search: GEN is the tree file to start from; file not found: {start}")
+        if up not in ("y", "z"):
+            raise UsageError(f"--up: expected y or z, got {up!r}")
+        if output.exists() and (not output.is_dir() or any(output.iterdir())):
+            raise UsageError(f"run folder {output} exists and is not an empty folder; choose a new folder or "
+                             "--resume it")
+    elif output is not None and output != resume:
+        raise UsageError("--resume RUN_DIR continues that folder; leave out -o or give the same folder")
+    from ipm.optim.structure import StructureSettings
+
+    if budget is not None and budget < 1:
+        raise UsageError(f"--budget: expected at least 1 evaluation, got {budget}")
+    budget = StructureSettings().budget if budget is None else budget
+    dev = resolve_device(device)
+    bar = Progress(TextColumn("structure round {task.fields[round]:<3}"), BarColumn(),
+                   TextColumn("{task.completed}/{task.total}"), TextColumn("IoU {task.fields[iou]}"),
+                   TimeElapsedColumn(), transient=True, console=Console(stderr=True))
+    task = bar.add_task("structure", total=budget, round=0, iou="-")
+    started = []
+
+    def progress(used: int, total: int, info: dict) -> None:
+        if not started:
+            bar.start()
+            started.append(True)
+        q = info.get("iou")
+        bar.update(task, completed=used, total=total, round=info.get("round", 0),
+                   iou="-" if q is None or q != q else f"{q:.3f}")
+
+    try:
+        if resume is not None:
+            out = fit_structure(run_dir=resume, resume=True, progress=progress, device=dev)
+        else:
+            out = fit_structure(target_mesh=target_mesh, up=up, masks=masks, start=start, run_dir=output,
+                                progress=progress, device=dev, budget=budget, seed=seed)
+    finally:
+        if started:
+            bar.stop()
+    out.pop("tree", None)
+    emit(out, json_out)
+    sys.stdout.flush()
 
 
 def _run_generator(run_dir: Path) -> str:

@@ -1,0 +1,143 @@
+"""What a structure search fits to: points of the target with their inside/outside labels.
+
+A mesh target gives points on its surface (where the fitted tree's distance should be 0), volume points
+(half uniform in the padded bounding box, half near the surface, offsets of sigma 0.02 in the unit-sphere
+frame) labelled inside or outside by the generalized winding number (robust to open scans), and a regular
+grid of cell centres over the bounds, also labelled: the search scores candidates by their occupancy IoU on
+the grid and finds what a candidate misses or adds as connected regions of grid cells.
+
+Masks of K >= 2 views give the same without surface points: a point is inside where every view's mask
+covers its projection (the visual hull, carved point by point), in the cube ``|x| <= extent`` around the
+world origin (DESIGN.md's targets lie in the unit sphere there).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ipm.errors import InputError
+from ipm.types import Camera, TriMesh
+
+NEAR_SIGMA = 0.02      # offsets of the near-surface volume points (unit-sphere frame)
+PAD = 0.05             # the bounds grown by this share of their diagonal
+
+
+@dataclass(frozen=True)
+class Samples:
+    """Target points (float tensors on one device) and labels. ``surface`` (S, 3) or None (masks);
+    ``volume`` (V, 3) with ``inside`` (V,) bool; ``grid`` (n³, 3) cell centres of a ``shape`` grid over
+    ``lo``..``hi`` with ``grid_inside`` (n³,) bool."""
+
+    surface: torch.Tensor | None
+    volume: torch.Tensor
+    inside: torch.Tensor
+    grid: torch.Tensor
+    grid_inside: torch.Tensor
+    shape: tuple[int, int, int]
+    lo: np.ndarray
+    hi: np.ndarray
+
+    @property
+    def cell(self) -> np.ndarray:
+        """The grid's cell size per axis (3,)."""
+        return (self.hi - self.lo) / np.asarray(self.shape)
+
+    def to(self, device=None, dtype=torch.float32) -> Samples:
+        def f(t):
+            return None if t is None else t.to(device=device, dtype=dtype)
+
+        return Samples(f(self.surface), f(self.volume), self.inside.to(device), f(self.grid),
+                       self.grid_inside.to(device), self.shape, self.lo, self.hi)
+
+
+def _grid(lo: np.ndarray, hi: np.ndarray, n: int) -> tuple[np.ndarray, tuple[int, int, int]]:
+    """Cell centres (n_x n_y n_z, 3) of a grid of about ``n`` cells along the longest side."""
+    ext = hi - lo
+    counts = tuple(int(max(4, round(n * e / ext.max()))) for e in ext)
+    axes = [lo[i] + (np.arange(c) + 0.5) * ext[i] / c for i, c in enumerate(counts)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3), counts
+
+
+def _padded(lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    pad = PAD * float(np.linalg.norm(hi - lo))
+    return lo - pad, hi + pad
+
+
+def mesh_samples(mesh: TriMesh, *, surface: int = 2000, volume: int = 6000, grid: int = 32,
+                 seed: int = 0) -> Samples:
+    """Samples of a mesh target (module docstring), deterministic per ``seed``."""
+    from ipm.metrics import inside, mesh_arrays, sample_surface
+
+    V, F = mesh_arrays(mesh)
+    if len(F) == 0:
+        raise InputError("target mesh: expected faces, got none")
+    rng = np.random.default_rng(seed)
+    lo, hi = _padded(V.min(0), V.max(0))
+    surf = sample_surface(V, F, surface, rng)
+    half = volume // 2
+    near = sample_surface(V, F, volume - half, rng) + rng.normal(0.0, NEAR_SIGMA, (volume - half, 3))
+    vol = np.concatenate([rng.uniform(lo, hi, (half, 3)), near])
+    pts, shape = _grid(lo, hi, grid)
+    f64 = torch.float64
+    return Samples(torch.as_tensor(surf, dtype=f64), torch.as_tensor(vol, dtype=f64),
+                   torch.as_tensor(inside(vol, V, F)), torch.as_tensor(pts, dtype=f64),
+                   torch.as_tensor(inside(pts, V, F)), shape, lo, hi)
+
+
+def carve(points: torch.Tensor, masks: torch.Tensor, cameras: Sequence[Camera]) -> torch.Tensor:
+    """Inside the visual hull: (N,) bool, True where every view's mask covers the point's projection (a
+    point behind a camera or outside its image is outside)."""
+    from ipm.render.camera import project
+
+    keep = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
+    for m, cam in zip(masks, cameras):
+        xy, depth = project(points, cam.to(points.dtype))
+        H, W = m.shape
+        x, y = torch.floor(xy[:, 0]).long(), torch.floor(xy[:, 1]).long()
+        ok = (depth > 0) & (x >= 0) & (x < W) & (y >= 0) & (y < H)
+        hit = torch.zeros_like(keep)
+        hit[ok] = m[y[ok], x[ok]]
+        keep &= hit
+    return keep
+
+
+def mask_samples(masks, cameras: Sequence[Camera], *, volume: int = 8000, grid: int = 32, extent: float = 1.2,
+                 seed: int = 0) -> Samples:
+    """Samples of the visual hull of ``masks`` (K, H, W) in views ``cameras`` (module docstring)."""
+    m = torch.as_tensor(np.asarray(masks)) > 0.5
+    if m.dim() != 3 or m.shape[0] != len(cameras):
+        raise InputError(f"masks: expected (K, H, W) with one camera each, got {tuple(m.shape)} and "
+                         f"{len(cameras)} cameras")
+    if m.shape[0] < 2:
+        raise InputError(f"structure search from masks: expected at least 2 views, got {m.shape[0]} (one view "
+                         "leaves the depth of every part free)")
+    coarse, cshape = _grid(np.full(3, -extent), np.full(3, extent), 96)
+    occ = carve(torch.as_tensor(coarse), m, cameras).numpy()
+    if not occ.any():
+        raise InputError("masks: the views' silhouettes have no point in common inside the cube |x| <= "
+                         f"{extent} (cameras looking elsewhere, or empty masks)")
+    step = 2 * extent / np.asarray(cshape)
+    inner = coarse[occ]
+    lo, hi = _padded(inner.min(0) - step, inner.max(0) + step)
+    rng = np.random.default_rng(seed)
+    half = volume // 2
+    # near the hull's boundary: coarse cells inside with a neighbour outside, jittered within a cell
+    full = occ.reshape(cshape)
+    edge = np.zeros_like(full)
+    for ax in range(3):
+        for sh in (1, -1):
+            edge |= full & ~np.roll(full, sh, axis=ax)
+    cells = coarse[edge.ravel()]
+    near = cells[rng.integers(0, len(cells), volume - half)] + rng.uniform(-1.5, 1.5, (volume - half, 3)) * step
+    vol = np.concatenate([rng.uniform(lo, hi, (half, 3)), near])
+    pts, shape = _grid(lo, hi, grid)
+    f64 = torch.float64
+    vol_t, pts_t = torch.as_tensor(vol, dtype=f64), torch.as_tensor(pts, dtype=f64)
+    return Samples(None, vol_t, carve(vol_t, m, cameras), pts_t, carve(pts_t, m, cameras), shape, lo, hi)
+
+
+__all__ = ["Samples", "carve", "mask_samples", "mesh_samples"]

@@ -1,0 +1,229 @@
+"""The beam search over trees (:func:`search`).
+
+Start: one part per primitive kind fitted to the target's bounding box (or a tree the user gives),
+refined and scored. Each round, every tree of the beam gets proposals from the edits (taken from the
+edits in turn, so that each kind of edit is tried, up to ``proposals`` per tree; none larger than
+``max_nodes``, none proposed twice); each proposal is refined by ``steps`` Adam steps and scored (grid IoU
+plus ``node_cost`` per node, :mod:`~ipm.optim.structure.candidate`); the ``beam`` best trees of different
+structure go on. The search stops when a round no longer improves the best score for ``patience``
+rounds, after ``rounds`` rounds, or when the budget (less the polish) is spent; the best tree is then
+refined by ``polish`` steps and kept if its score did not get worse.
+
+Deterministic: no random choice is made after the target's samples are drawn; one thread of torch
+gives the same floats. Resumable: after every round the state (beam, best, evaluations, elapsed time,
+records written) goes to ``checkpoint``; :func:`search` given that state continues with the next round,
+and ends where an uninterrupted search would.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ipm.errors import InputError
+from ipm.optim.structure import candidate as C
+from ipm.optim.structure.edits import EDITS, Context, Proposal
+from ipm.optim.structure.program import count_nodes, part, signature, structure
+from ipm.optim.structure.samples import Samples
+from ipm.optim.structure.settings import StructureSettings
+
+log = logging.getLogger(__name__)
+
+IMPROVEMENT = 1e-4   # a round counts as an improvement when it lowers the best score by more
+
+
+@dataclass
+class Scored:
+    tree: dict
+    score: float
+    iou: float
+    nodes: int
+    loss: float = math.nan
+    label: str = "start"
+
+    def to_json(self) -> dict:
+        return {"tree": self.tree, "score": self.score, "iou": self.iou, "nodes": self.nodes, "loss": self.loss,
+                "label": self.label}
+
+    @classmethod
+    def from_json(cls, d: dict) -> Scored:
+        return cls(d["tree"], float(d["score"]), float(d["iou"]), int(d["nodes"]), float(d["loss"]), d["label"])
+
+
+@dataclass
+class SearchResult:
+    """The best tree (nested JSON dict), its score, grid IoU and node count, the evaluations and seconds
+    spent (every resumed run included), the rounds run and why the search stopped."""
+
+    tree: dict
+    score: float
+    iou: float
+    nodes: int
+    evaluations: int
+    wall_time_s: float
+    rounds: int
+    stopped: str
+    beam: list[Scored] = field(default_factory=list)
+
+    @property
+    def structure(self) -> str:
+        return structure(self.tree)
+
+    @property
+    def signature(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
+        return signature(self.tree)
+
+
+def starts(samples: Samples, kinds) -> list[Proposal]:
+    """One part per kind over the target's bounding box and one over its core (the largest box of cells
+    nearly all inside: the body of a chair, the base of a lamp)."""
+    regions = C.regions(samples.grid_inside, samples, 1, 10 ** 9)
+    if not regions:
+        raise InputError("structure search: the target has no inside (an empty mesh or masks without a "
+                         "common silhouette)")
+    lo = np.min([r.lo for r in regions], axis=0)
+    hi = np.max([r.hi for r in regions], axis=0)
+    core = regions[0]
+    out = [Proposal(f"start {k} at the bounds", part("part1", k, 0.5 * (lo + hi), hi - lo)) for k in kinds]
+    return out + [Proposal(f"start {k} at the core", part("part1", k, core.center_core, core.core_hi - core.core_lo))
+                  for k in kinds]
+
+
+def _interleave(lists: list[list[Proposal]], cap: int) -> list[Proposal]:
+    out: list[Proposal] = []
+    i = 0
+    while len(out) < cap and any(i < len(x) for x in lists):
+        for x in lists:
+            if i < len(x) and len(out) < cap:
+                out.append(x[i])
+        i += 1
+    return out
+
+
+def search(samples: Samples, settings: StructureSettings = StructureSettings(), *, start: dict | None = None,
+           state: dict | None = None, checkpoint: Callable[[dict], None] | None = None,
+           record: Callable[[dict], None] | None = None,
+           progress: Callable[[int, int, dict], None] | None = None) -> SearchResult:
+    """Search trees for ``samples`` (module docstring). ``start``: a tree to begin from instead of the
+    bounding-box parts; ``state``: a checkpoint to resume; ``record``: called with every scored tree
+    (the trajectory); ``progress``: called with (evaluations, budget, info) after each step."""
+    settings.check()
+    s = settings
+    t0 = time.perf_counter()
+    t_before = float(state["elapsed"]) if state else 0.0
+    records = int(state["records"]) if state else 0
+    budget = C.Budget(s.budget - s.polish, int(state["used"]) if state else 0)
+    info: dict = {"round": int(state["round"]) if state else 0, "iou": math.nan}
+
+    def tick() -> None:
+        if progress is not None:
+            progress(budget.used, s.budget, info)
+
+    def elapsed() -> float:
+        return t_before + time.perf_counter() - t0
+
+    def evaluate(p: Proposal, rnd: int, parent: int) -> Scored:
+        nonlocal records
+        tree, loss = C.refine(p.tree, samples, s.steps, s.lr, budget, tick)
+        sc, q, _ = C.score(tree, samples, s.node_cost)
+        budget.take()
+        out = Scored(tree, sc, q, count_nodes(tree), loss, p.label)
+        if record is not None:
+            record({"i": records, "round": rnd, "parent": parent, "edit": p.label, "structure": structure(tree),
+                    "nodes": out.nodes, "iou": q, "score": sc, "loss": loss, "evaluations": budget.used,
+                    "t": round(elapsed(), 3), "tree": tree})
+        records += 1
+        return out
+
+    def select(pool: list[Scored]) -> list[Scored]:
+        kept, seen = [], set()
+        for c in sorted(pool, key=lambda c: c.score):  # stable: ties keep the earlier tree
+            key = structure(c.tree)
+            if key not in seen:
+                seen.add(key)
+                kept.append(c)
+            if len(kept) == s.beam:
+                break
+        return kept
+
+    if state:
+        beam = [Scored.from_json(d) for d in state["beam"]]
+        best = Scored.from_json(state["best"])
+        rnd, stale, stopped = int(state["round"]), int(state["stale"]), state.get("stopped")
+    else:
+        first = [Proposal("start (given)", start)] if start is not None else starts(samples, s.kinds)
+        beam = select([evaluate(p, 0, -1) for p in first if budget.left > 0])
+        if not beam:
+            raise InputError(f"structure search: budget {s.budget} leaves no evaluation for the start after the "
+                             f"polish's {s.polish}")
+        best, rnd, stale, stopped = beam[0], 0, 0, None
+
+    def save() -> None:
+        if checkpoint is not None:
+            checkpoint({"round": rnd, "beam": [b.to_json() for b in beam], "best": best.to_json(), "stale": stale,
+                        "used": budget.used, "elapsed": elapsed(), "records": records, "stopped": stopped})
+
+    if not state:
+        save()
+    min_cells = max(2, int(s.min_region * int(samples.grid_inside.sum())))
+    while stopped is None:
+        if rnd >= s.rounds:
+            stopped = "rounds"
+            break
+        if budget.left <= 0:
+            stopped = "budget"
+            break
+        rnd += 1
+        info["round"] = rnd
+        seen = {json.dumps(b.tree, sort_keys=True) for b in beam}
+        pool = list(beam)
+        for j, cand in enumerate(beam):
+            occ = C.occupancy(cand.tree, samples)
+            missing, extra = C.residual(occ, samples)
+            ctx = Context(samples, tuple(C.regions(missing, samples, min_cells, s.regions)),
+                          tuple(C.regions(extra, samples, min_cells, s.regions)), s.kinds)
+            lists = []
+            for name in s.edits:
+                ok = []
+                for p in EDITS.get(name)(cand.tree, ctx):
+                    key = json.dumps(p.tree, sort_keys=True)
+                    if count_nodes(p.tree) <= s.max_nodes and key not in seen:
+                        seen.add(key)
+                        ok.append(p)
+                lists.append(ok)
+            for p in _interleave(lists, s.proposals):
+                if budget.left <= 0:
+                    break
+                pool.append(evaluate(p, rnd, j))
+        beam = select(pool)
+        if beam[0].score < best.score - IMPROVEMENT:
+            best, stale = beam[0], 0
+        else:
+            stale += 1
+        info["iou"] = best.iou
+        log.info("structure round %d: best %s, %d nodes, IoU %.4f, score %.4f (%d evaluations)", rnd,
+                 structure(best.tree), best.nodes, best.iou, best.score, budget.used)
+        if stale >= s.patience:
+            stopped = "converged"
+        save()
+    # the polish: the rest of the budget, at a third of the step
+    polish = C.Budget(s.budget, budget.used)
+    final = best
+    if polish.left > 0 and s.polish > 0:
+        tree, loss = C.refine(best.tree, samples, polish.left - 1, s.lr / 3, polish,
+                              lambda: progress(polish.used, s.budget, info) if progress else None)
+        sc, q, _ = C.score(tree, samples, s.node_cost)
+        polish.take()
+        if sc <= best.score:
+            final = Scored(tree, sc, q, count_nodes(tree), loss, "polish")
+    return SearchResult(final.tree, final.score, final.iou, final.nodes, polish.used, elapsed(), rnd, stopped,
+                        beam)
+
+
+__all__ = ["IMPROVEMENT", "Scored", "SearchResult", "search", "starts"]

@@ -1,0 +1,196 @@
+"""Structure search (issue #16): samples, tree edits, the core box and the residual, the search recovering a
+known three-primitive tree, determinism, resume and the command line."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from ipm.errors import InputError
+from ipm.optim.structure import StructureSettings, mask_samples, mesh_samples, search, signature, structure
+from ipm.optim.structure import candidate as C
+from ipm.optim.structure.edits import EDITS, Context
+from ipm.optim.structure.program import count_nodes, part, primitives
+
+TRUTH = {"node": "subtraction", "children": [
+    {"node": "union", "children": [
+        {"node": "translate", "params": {"x": 0.0, "y": -0.2, "z": 0.0},
+         "children": [{"node": "box", "params": {"size_x": 1.2, "size_y": 0.4, "size_z": 0.8}}]},
+        {"node": "translate", "params": {"x": 0.3, "y": 0.25, "z": 0.0},
+         "children": [{"node": "cylinder", "params": {"radius": 0.25, "height": 0.6}}]}]},
+    {"node": "translate", "params": {"x": -0.5, "y": 0.0, "z": 0.3},
+     "children": [{"node": "sphere", "params": {"radius": 0.35}}]}]}
+
+
+def truth_mesh(resolution: int = 64):
+    from ipm.sdf.meshing import mesh_sdf
+    from ipm.sdf.tree import tree_from_json
+
+    tree = tree_from_json({"tree": TRUTH})
+    lo, hi = tree.bounds()
+    return mesh_sdf(lambda p: tree.sdf(None, p), lo, hi, resolution)
+
+
+@pytest.fixture(scope="module")
+def samples():
+    return mesh_samples(truth_mesh(), surface=1000, volume=3000, grid=32).to(dtype=torch.float32)
+
+
+def test_mesh_samples_label_the_truth(samples):
+    from ipm.sdf.tree import tree_from_json
+
+    tree = tree_from_json({"tree": TRUTH})
+    d = tree.sdf(None, samples.volume.double())
+    far = d.abs() > 0.03   # the marching-cubes mesh is within a fraction of a cell of the true surface
+    assert torch.equal(samples.inside[far], (d < 0)[far])
+    assert float(tree.sdf(None, samples.surface.double()).abs().max()) < 0.03
+    assert samples.grid.shape[0] == int(np.prod(samples.shape))
+
+
+def test_mask_samples_carve_the_visual_hull():
+    from ipm.bench.protocol import render_masks
+    from ipm.render.camera import input_views
+
+    mesh = truth_mesh(48)
+    cams = input_views(2, 128)
+    masks = render_masks(mesh, cams)
+    s = mask_samples(masks, cams, volume=2000, grid=24)
+    from ipm.sdf.tree import tree_from_json
+
+    d = tree_from_json({"tree": TRUTH}).sdf(None, s.grid)
+    assert bool(s.grid_inside[d < -0.05].all())   # the hull holds the solid
+    assert s.surface is None
+    with pytest.raises(InputError, match="at least 2 views"):
+        mask_samples(masks[:1], cams[:1])
+    with pytest.raises(InputError, match="no point in common"):
+        mask_samples(np.zeros_like(masks), cams)
+
+
+def test_core_box_is_inside_and_grows_over_a_slab():
+    region = np.zeros((10, 10, 10), bool)
+    region[1:9, 2:4, 1:9] = True      # a seat
+    region[1:3, 2:9, 7:9] = True      # a back
+    lo, hi = C.core_box(region)
+    assert region[lo[0]:hi[0], lo[1]:hi[1], lo[2]:hi[2]].mean() >= C.CORE_FILL
+    np.testing.assert_array_equal([lo, hi], [[1, 2, 1], [9, 4, 9]])
+
+
+def test_residual_ignores_a_one_cell_shell_and_finds_a_missing_part(samples):
+    near = part("part1", "box", [0.0, -0.2, 0.0], [1.25, 0.45, 0.85])   # the base, a little too big
+    occ = C.occupancy(near, samples)
+    missing, extra = C.residual(occ, samples)
+    rs = C.regions(missing, samples, 2, 3)
+    assert rs and rs[0].hi[1] > 0.4                     # the cylinder on top
+    # the extra cells are where the sphere cuts the base, not the base's outline error
+    big = C.regions(extra, samples, 2, 3)
+    assert big and np.hypot(big[0].center[0] + 0.5, big[0].center[2] - 0.3) < 0.2
+    assert all(r.cells < 0.1 * big[0].cells for r in big[1:])
+
+
+def test_edits_propose_valid_trees(samples):
+    from ipm.sdf.tree import tree_from_json
+
+    start = TRUTH
+    occ = C.occupancy(start, samples)
+    missing, extra = C.residual(occ, samples)
+    ctx = Context(samples, tuple(C.regions(missing, samples, 2, 2)), tuple(C.regions(extra, samples, 2, 2)),
+                  ("box", "cylinder", "sphere"))
+    for name in EDITS.names():
+        for p in EDITS.get(name)(start, ctx):
+            tree_from_json({"tree": p.tree})               # loads: a valid tree
+            assert p.tree is not start
+    replaced = EDITS.get("replace")(start, ctx)
+    assert len(replaced) == 2 * len(primitives(start))
+    deleted = EDITS.get("delete")(start, ctx)
+    assert len(deleted) == 3 and {count_nodes(p.tree) for p in deleted} == {5}  # the cut, the cylinder, the base
+
+
+def test_signature_and_structure_ignore_union_order():
+    a = {"node": "union", "children": [part("part1", "box", [0, 0, 0], [1, 1, 1]),
+                                       part("part2", "sphere", [1, 0, 0], [1, 1, 1])]}
+    b = {"node": "union", "children": list(reversed(a["children"]))}
+    assert structure(a) == structure(b)
+    assert signature(TRUTH) == (("box", "cylinder"), ("sphere",))
+
+
+def test_search_recovers_a_three_primitive_tree(samples):
+    s = StructureSettings(budget=3000, polish=300, steps=30, grid=32, seed=0)
+    r = search(samples, s)
+    assert r.signature == signature(TRUTH)
+    assert r.iou > 0.97 and r.evaluations <= s.budget
+
+
+def test_search_is_deterministic_and_resumes_where_it_left_off(samples):
+    s = StructureSettings(budget=1600, polish=200, steps=20, grid=32, proposals=6, rounds=3)
+    states: list[dict] = []
+    a = search(samples, s, checkpoint=lambda st: states.append(json.loads(json.dumps(st))))
+    b = search(samples, s)
+    assert json.dumps(a.tree) == json.dumps(b.tree) and a.evaluations == b.evaluations
+    resumed = search(samples, s, state=states[1])
+    assert json.dumps(resumed.tree) == json.dumps(a.tree) and resumed.evaluations == a.evaluations
+
+
+@pytest.mark.parametrize("kw, msg", [
+    ({"beam": 0}, "structure beam: expected an integer in \\[1, 64\\], got 0"),
+    ({"node_cost": float("nan")}, "structure node cost"),
+    ({"kinds": ("box", "cone")}, "structure kinds: expected some of box, cylinder, sphere"),
+    ({"edits": ("add", "explode")}, "structure edits: expected some of"),
+    ({"budget": 100, "polish": 100}, "structure polish: expected fewer steps than the budget"),
+])
+def test_bad_settings_are_one_line(kw, msg):
+    with pytest.raises(InputError, match=msg):
+        StructureSettings(**kw).check()
+
+
+def _ipm(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "ipm", *args], capture_output=True, text=True, cwd=cwd,
+                          timeout=600)
+
+
+def test_cli_search_writes_a_tree_that_generate_reproduces(tmp_path):
+    from ipm.io.export import export_mesh
+    from ipm.io.meshes import load_mesh
+
+    target = tmp_path / "truth.obj"
+    export_mesh(truth_mesh(48), target, sidecar=False)
+    run = tmp_path / "run"
+    p = _ipm("fit", "--structure", "search", "--target-mesh", str(target), "-o", str(run), "--budget", "1500",
+             "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["evaluations"] <= 1500 and out["nodes"] == count_nodes(json.loads((run / "tree.json").read_text())["tree"])
+    lines = (run / "structures.jsonl").read_text().splitlines()
+    assert lines and all("structure" in json.loads(x) for x in lines)
+    again = tmp_path / "again.obj"
+    g = _ipm("generate", str(run / "tree.json"), "-o", str(again))
+    assert g.returncode == 0, g.stderr
+    a, b = load_mesh(run / "mesh.obj", normalize=False), load_mesh(again, normalize=False)
+    assert torch.equal(a.faces, b.faces) and torch.allclose(a.verts, b.verts, atol=1e-6)
+    r = _ipm("fit", "--resume", str(run), "--json")   # a finished run resumes to the same result
+    assert r.returncode == 0, r.stderr
+    assert json.loads(r.stdout)["structure"] == out["structure"]
+
+
+@pytest.mark.parametrize("args, msg", [
+    (["--structure", "grow"], "--structure: expected fixed or search"),
+    (["--structure", "search", "-o", "{tmp}/r"], "expected one target"),
+    (["--structure", "search", "--target-mesh", "{tmp}/none.obj", "-o", "{tmp}/r"], "file not found"),
+    (["--structure", "search", "--target-mesh", "{tmp}/t.obj", "--image", "{tmp}/t.obj", "-o", "{tmp}/r"],
+     "takes a mesh or masks only"),
+    (["--structure", "search", "--target-mesh", "{tmp}/t.obj", "-o", "{tmp}/r", "--budget", "0"],
+     "--budget: expected at least 1"),
+    (["--structure", "search", "--target-mesh", "{tmp}/t.obj", "-o", "{tmp}/r", "--budget", "300"],
+     "structure polish: expected fewer steps than the budget"),
+])
+def test_cli_bad_input_is_one_line(tmp_path, args, msg):
+    (tmp_path / "t.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    p = _ipm("fit", *[a.format(tmp=tmp_path) for a in args])
+    assert p.returncode == 2, p.stderr
+    err = p.stderr.strip().splitlines()
+    assert len(err) == 1 and msg in err[0], p.stderr
+    assert not (tmp_path / "r").exists() or not any((tmp_path / "r").iterdir())
