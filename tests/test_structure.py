@@ -194,3 +194,29 @@ def test_cli_bad_input_is_one_line(tmp_path, args, msg):
     err = p.stderr.strip().splitlines()
     assert len(err) == 1 and msg in err[0], p.stderr
     assert not (tmp_path / "r").exists() or not any((tmp_path / "r").iterdir())
+
+
+EDIT = '''
+from ipm.optim.structure.edits import EDITS, Proposal
+
+CALLS = []
+
+
+@EDITS.register("{name}")
+def grow_first(tree, ctx):
+    """The tree proposed unchanged (a throwaway edit)."""
+    CALLS.append(tree)
+    return [Proposal("same", tree)]
+'''
+
+
+def test_an_edit_from_a_new_module(tmp_path, monkeypatch, samples):
+    from conftest import throwaway_member
+
+    name, pkg = "throwaway_same", "throwaway_edits"
+    with pytest.raises(InputError, match="structure edits: expected some of"):
+        StructureSettings(edits=(name,)).check()
+    with throwaway_member(EDITS, name, EDIT.format(name=name), tmp_path, monkeypatch, pkg):
+        s = StructureSettings(budget=400, polish=50, steps=10, grid=24, edits=("add", name), rounds=2)
+        search(samples, s)
+        assert sys.modules[f"{pkg}.member"].CALLS   # asked each round for the beam's trees

@@ -59,7 +59,7 @@ def register(app: typer.Typer) -> None:
         discrete: Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")] = "memetic",
         budget: Annotated[int | None, typer.Option(help=(
             "function evaluations (one render + loss each; --structure search: one Adam step or score of a "
-            "tree) (default 1500; --structure search: 8000)"))] = None,
+            "tree) (default 1500; --structure search: 16000)"))] = None,
         seed: SeedOpt = 0,
         preset: PresetOpt = None,
         loss: Annotated[str, typer.Option(help=(

@@ -1,4 +1,4 @@
-"""``ipm list generators|nodes|presets|strategies|losses|methods``: what the registries hold."""
+"""``ipm list generators|nodes|presets|strategies|losses|edits|methods``: what the registries hold."""
 
 from __future__ import annotations
 
@@ -9,12 +9,13 @@ import typer
 
 from ipm.cli.common import JsonOpt, LibraryOpt, UsageError, emit
 
-WHAT = ("generators", "nodes", "presets", "strategies", "losses", "methods")
+WHAT = ("generators", "nodes", "presets", "strategies", "losses", "edits", "methods")
 HELP = {"generators": "procedural generators: kind, parameter counts, presets",
         "nodes": "SDF node types: dimension, children, parameters",
         "presets": "named starting points of every generator and tree",
         "strategies": "discrete search strategies of ipm fit --discrete",
         "losses": "mask losses of ipm fit --loss",
+        "edits": "tree edits of ipm fit --structure search",
         "methods": "bench methods of experiment files"}
 
 
@@ -37,6 +38,12 @@ def _losses() -> list[dict]:
     from ipm.losses import LOSSES
 
     return _members(LOSSES)
+
+
+def _edits() -> list[dict]:
+    from ipm.optim.structure.edits import EDITS
+
+    return _members(EDITS)
 
 
 def _methods() -> list[dict]:
@@ -107,7 +114,7 @@ def register(app: typer.Typer) -> None:
 
             load_library([str(p) for p in library])
         rows = {"generators": _generators, "nodes": _nodes, "presets": _presets, "strategies": _strategies,
-                "losses": _losses, "methods": _methods}[what]()
+                "edits": _edits, "losses": _losses, "methods": _methods}[what]()
         if json_out:
             emit(rows, True)
             return

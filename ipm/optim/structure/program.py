@@ -56,6 +56,16 @@ def part(name: str, kind: str, center, ext) -> dict:
             "children": [primitive(kind, ext)]}
 
 
+def part_box(node: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """The bounding box ``(lo, hi)`` of a part whose child is a plain primitive, else None."""
+    child = node["children"][0]
+    if child.get("node") not in PRIMITIVES:
+        return None
+    c = np.array([node["params"][a] for a in "xyz"], dtype=np.float64)
+    h = 0.5 * extent(child)
+    return c - h, c + h
+
+
 def combine(op: str, a: dict, b: dict) -> dict:
     return {"node": op, "children": [a, b]}
 
@@ -141,5 +151,5 @@ def signature(d: dict) -> tuple[tuple[str, ...], tuple[str, ...]]:
     return tuple(sorted(add)), tuple(sorted(cut))
 
 
-__all__ = ["PRIMITIVES", "combine", "count_nodes", "extent", "get", "next_name", "part", "parts", "primitive",
-           "primitive_counts", "primitives", "replaced", "signature", "structure", "walk"]
+__all__ = ["PRIMITIVES", "combine", "count_nodes", "extent", "get", "next_name", "part", "part_box", "parts",
+           "primitive", "primitive_counts", "primitives", "replaced", "signature", "structure", "walk"]

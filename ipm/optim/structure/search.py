@@ -1,13 +1,14 @@
 """The beam search over trees (:func:`search`).
 
-Start: one part per primitive kind fitted to the target's bounding box (or a tree the user gives),
-refined and scored. Each round, every tree of the beam gets proposals from the edits (taken from the
-edits in turn, so that each kind of edit is tried, up to ``proposals`` per tree; none larger than
-``max_nodes``, none proposed twice); each proposal is refined by ``steps`` Adam steps and scored (grid IoU
-plus ``node_cost`` per node, :mod:`~ipm.optim.structure.candidate`); the ``beam`` best trees of different
-structure go on. The search stops when a round no longer improves the best score for ``patience``
-rounds, after ``rounds`` rounds, or when the budget (less the polish) is spent; the best tree is then
-refined by ``polish`` steps and kept if its score did not get worse.
+Start: one part per primitive kind fitted to the target's bounding box and one fitted to its core (or a
+tree the user gives), refined and scored. Each round, every tree of the beam gets proposals from the edits
+(taken from the edits in turn, so that each kind of edit is tried, each edit's list read from a later
+position every round, up to ``proposals`` per tree; none larger than ``max_nodes``, none proposed twice),
+and the tree itself is refined further alongside them; each proposal is refined by ``steps`` Adam steps
+and scored (grid IoU plus ``node_cost`` per node, :mod:`~ipm.optim.structure.candidate`); the
+``beam`` best trees of different structure go on. The search stops when a round no longer improves
+the best score for ``patience`` rounds, after ``rounds`` rounds, or when the budget (less the polish)
+is spent; the best tree is then refined by ``polish`` steps and kept if its score did not get worse.
 
 Deterministic: no random choice is made after the target's samples are drawn; one thread of torch
 gives the same floats. Resumable: after every round the state (beam, best, evaluations, elapsed time,
@@ -95,7 +96,10 @@ def starts(samples: Samples, kinds) -> list[Proposal]:
                   for k in kinds]
 
 
-def _interleave(lists: list[list[Proposal]], cap: int) -> list[Proposal]:
+def _interleave(lists: list[list[Proposal]], cap: int, shift: int = 0) -> list[Proposal]:
+    """Up to ``cap`` proposals taken from the lists in turn, each list read from position ``shift`` on
+    (cyclically), so that successive rounds try different members of a long list."""
+    lists = [x[shift % len(x):] + x[:shift % len(x)] if x else x for x in lists]
     out: list[Proposal] = []
     i = 0
     while len(out) < cap and any(i < len(x) for x in lists):
@@ -197,7 +201,9 @@ def search(samples: Samples, settings: StructureSettings = StructureSettings(), 
                         seen.add(key)
                         ok.append(p)
                 lists.append(ok)
-            for p in _interleave(lists, s.proposals):
+            # the tree itself, refined as long as its proposals are: an edit must beat its parent given the
+            # same steps, not only the steps it got
+            for p in [Proposal("refine", cand.tree), *_interleave(lists, s.proposals, rnd - 1)]:
                 if budget.left <= 0:
                     break
                 pool.append(evaluate(p, rnd, j))

@@ -11,7 +11,7 @@ from ipm.errors import InputError
 from ipm.optim.structure.program import PRIMITIVES
 from ipm.settings_check import allowed, error_path, field_types, first_infinite
 
-DEFAULT_EDITS = ("add", "replace", "delete", "mirror", "turn", "smooth")
+DEFAULT_EDITS = ("add", "replace", "delete", "merge", "mirror", "turn", "smooth")
 
 
 @dataclass(frozen=True)
@@ -19,14 +19,14 @@ class StructureSettings:
     """Defaults are what ``ipm fit --structure search`` uses (unit-sphere frame: targets normalized as
     DESIGN.md's protocol does)."""
 
-    budget: Annotated[int, Meta(ge=1)] = 8000                 # evaluations (Adam steps + scores) in all
+    budget: Annotated[int, Meta(ge=1)] = 16000                # evaluations (Adam steps + scores) in all
     seed: Annotated[int, Meta(ge=0)] = 0                      # the target's samples
     beam: Annotated[int, Meta(ge=1, le=64)] = 3               # trees kept from one round to the next
     proposals: Annotated[int, Meta(ge=1, le=1024)] = 12       # edits tried per beam member and round
     steps: Annotated[int, Meta(ge=1, le=100_000)] = 40        # Adam steps refining each proposal
     polish: Annotated[int, Meta(ge=0, le=1_000_000)] = 600    # Adam steps of the best tree at the end
     lr: Annotated[float, Meta(gt=0.0, le=1.0)] = 0.01         # Adam step (raw parameter units)
-    node_cost: Annotated[float, Meta(ge=0.0, le=1.0)] = 0.003  # score per node: the IoU a node must buy
+    node_cost: Annotated[float, Meta(ge=0.0, le=1.0)] = 0.005  # score per node: the IoU a node must buy
     max_nodes: Annotated[int, Meta(ge=2, le=1024)] = 24       # no proposal grows beyond this
     rounds: Annotated[int, Meta(ge=0, le=10_000)] = 16        # rounds of edits at most
     patience: Annotated[int, Meta(ge=1, le=1000)] = 2         # rounds without a better best before stopping

@@ -11,6 +11,7 @@ OPS = ("union", "smooth_union", "subtraction", "smooth_subtraction")
 
 @EDITS.register("delete")
 def delete(tree: dict, ctx: Context) -> list[Proposal]:
+    """A union's or subtraction's subtree removed."""
     out = []
     for path, node in walk(tree):
         if node.get("node") not in OPS:

@@ -34,6 +34,7 @@ def _mirrored(node: dict, axes: tuple[int, ...], mid: np.ndarray) -> dict:
 
 @EDITS.register("mirror")
 def mirror(tree: dict, ctx: Context) -> list[Proposal]:
+    """A part mirrored across the target's middle plane in x, z or both (a pair, a quad)."""
     out = []
     mid = 0.5 * (ctx.samples.lo + ctx.samples.hi)
     tol = 2.0 * ctx.samples.cell

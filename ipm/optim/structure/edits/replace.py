@@ -9,6 +9,7 @@ from ipm.optim.structure.program import extent, primitive, primitives, replaced
 
 @EDITS.register("replace")
 def replace(tree: dict, ctx: Context) -> list[Proposal]:
+    """A primitive swapped for another kind with the same bounding box."""
     out = []
     for path, prim in primitives(tree):
         for kind in ctx.kinds:

@@ -13,6 +13,7 @@ RADIUS = 0.02   # the starting radius and blend width (unit-sphere frame)
 
 @EDITS.register("smooth")
 def smooth(tree: dict, ctx: Context) -> list[Proposal]:
+    """A primitive rounded, or a union made smooth."""
     out = []
     for path, prim in primitives(tree):
         parent = get(tree, path[:-1]) if path else None

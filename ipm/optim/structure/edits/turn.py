@@ -12,10 +12,11 @@ AXES = {"x": (90.0, 0.0), "z": (90.0, 90.0)}   # (tilt, azimuth) of the rotation
 
 @EDITS.register("turn")
 def turn(tree: dict, ctx: Context) -> list[Proposal]:
+    """A part's primitive turned about its centre (about x or z)."""
     out = []
     for path, node in parts(tree):
         child = get(node, (0,))
-        if child.get("node") == "rotate":
+        if child.get("node") in ("rotate", "sphere"):   # turned already, or round
             continue
         for name, (tilt, azimuth) in AXES.items():
             rot = {"node": "rotate", "params": {"angle": 0.0, "tilt": tilt, "azimuth": azimuth}, "children": [child]}
