@@ -330,7 +330,8 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
         if sink is not None:
             sink.close()
     out = {"structure": structure(res.tree), "nodes": count_nodes(res.tree), "primitives": primitive_counts(res.tree),
-           "adds": list(signature(res.tree)[0]), "cuts": list(signature(res.tree)[1]), "grid_iou": res.iou,
+           "adds": list(signature(res.tree)[0]), "cuts": list(signature(res.tree)[1]), "fit_iou": res.iou,
+           "fit_iou_of": "occupancy on the sample grid" if masks is None else "silhouettes at the mask rays",
            "score": res.score, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
            "rounds": res.rounds, "stopped": res.stopped, "frame": frame}
     if run_dir is not None:

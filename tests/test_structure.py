@@ -62,9 +62,15 @@ def test_mask_samples_carve_the_visual_hull():
     s = mask_samples(masks, cams, volume=2000, grid=24)
     from ipm.sdf.tree import tree_from_json
 
-    d = tree_from_json({"tree": TRUTH}).sdf(None, s.grid)
+    tree = tree_from_json({"tree": TRUTH})
+    d = tree.sdf(None, s.grid)
     assert bool(s.grid_inside[d < -0.05].all())   # the hull holds the solid
     assert s.surface is None
+    # silhouette rays: the truth's least distance along a ray is < 0 where the ray's pixel is object (up to
+    # the sample spacing and the pixels the area average splits)
+    m = C.silhouettes(tree, None, s)
+    agree = ((m < 0) == s.ray_hit).double().mean()
+    assert s.rays.shape[1:] == (32, 3) and float(agree) > 0.97 and 0.1 < float(s.ray_hit.double().mean()) < 0.6
     with pytest.raises(InputError, match="at least 2 views"):
         mask_samples(masks[:1], cams[:1])
     with pytest.raises(InputError, match="no point in common"):
@@ -174,6 +180,19 @@ def test_cli_search_writes_a_tree_that_generate_reproduces(tmp_path):
     r = _ipm("fit", "--resume", str(run), "--json")   # a finished run resumes to the same result
     assert r.returncode == 0, r.stderr
     assert json.loads(r.stdout)["structure"] == out["structure"]
+
+
+def test_cli_search_from_masks(tmp_path):
+    from ipm.io.export import export_mesh
+
+    target = tmp_path / "truth.obj"
+    export_mesh(truth_mesh(48), target, sidecar=False)
+    assert _ipm("render", str(target), "--views", "2", "-o", str(tmp_path / "masks")).returncode == 0
+    p = _ipm("fit", "--structure", "search", "--masks", str(tmp_path / "masks"), "-o", str(tmp_path / "run"),
+             "--budget", "700", "--json")
+    assert p.returncode == 0, p.stderr
+    out = json.loads(p.stdout)
+    assert out["fit_iou_of"] == "silhouettes at the mask rays" and out["fit_iou"] > 0.7 and out["evaluations"] <= 700
 
 
 @pytest.mark.parametrize("args, msg", [

@@ -5,8 +5,11 @@ of the target it misses or covers too much (where the edits put new parts).
   each step) against the fit loss of mesh fits of SDF trees (:mod:`ipm.losses.sdf`): the mean |SDF| at the
   target's surface points plus the occupancy cross-entropy at its volume points. One step is one
   evaluation (the tree at every sample, forward and backward), counted against the search's budget.
-- **Score**: ``1 - IoU`` of the tree's occupancy with the target's on the sample grid, plus the description
-  length ``node_cost`` per node: a node must buy ``node_cost`` of IoU to stay.
+  Masks: the same cross-entropy between the tree's silhouette at each ray (the minimum of its distance
+  along the ray) and the ray's pixel.
+- **Score**: ``1 - IoU`` of the tree's occupancy with the target's on the sample grid (masks: of its
+  silhouettes with the masks, over every ray), plus the description length ``node_cost`` per node: a node
+  must buy ``node_cost`` of IoU to stay.
 - **Residual**: grid cells inside the target and outside the tree (missing) and the reverse (extra),
   split into connected regions, largest first, each with its bounding box.
 """
@@ -121,6 +124,20 @@ def fit_loss(f: torch.Tensor | None, g: torch.Tensor, inside: torch.Tensor) -> t
     return occ if f is None else sdf_surface_loss(f) + OCCUPANCY_WEIGHT * occ
 
 
+def silhouettes(tree, theta: torch.Tensor | None, samples: Samples) -> torch.Tensor:
+    """The tree's silhouette value (R,) at every ray of a mask target: its least distance along the ray."""
+    R, P, _ = samples.rays.shape
+    return tree.sdf(theta, samples.rays.reshape(-1, 3)).reshape(R, P).amin(1)
+
+
+def objective(tree, theta: torch.Tensor, samples: Samples) -> torch.Tensor:
+    """The refinement's loss of ``tree`` at parameters ``theta`` (module docstring)."""
+    if samples.rays is not None:
+        return occupancy_loss(silhouettes(tree, theta, samples), samples.ray_hit, SHARPNESS)
+    f = None if samples.surface is None else tree.sdf(theta, samples.surface)
+    return fit_loss(f, tree.sdf(theta, samples.volume), samples.inside)
+
+
 def refine(d: dict, samples: Samples, steps: int, lr: float, budget: Budget,
            after_step: Callable[[], None] | None = None) -> tuple[dict, float]:
     """``d`` with its parameters refined by up to ``steps`` Adam steps (fewer when the budget runs out);
@@ -137,8 +154,7 @@ def refine(d: dict, samples: Samples, steps: int, lr: float, budget: Budget,
     for _ in range(steps):
         if not budget.take():
             break
-        f = None if samples.surface is None else tree.sdf(theta, samples.surface)
-        value = fit_loss(f, tree.sdf(theta, samples.volume), samples.inside)
+        value = objective(tree, theta, samples)
         opt.zero_grad()
         value.backward()
         if not bool(torch.isfinite(theta.grad).all()):
@@ -172,9 +188,15 @@ def iou(occ: torch.Tensor, samples: Samples) -> float:
 
 
 def score(d: dict, samples: Samples, node_cost: float) -> tuple[float, float, torch.Tensor]:
-    """``(score, grid IoU, occupancy)`` of tree ``d`` (module docstring)."""
+    """``(score, IoU, occupancy on the grid)`` of tree ``d`` (module docstring)."""
     occ = occupancy(d, samples)
-    q = iou(occ, samples)
+    if samples.rays is not None:
+        with torch.no_grad():
+            seen = silhouettes(compile_tree(d), None, samples) < 0
+        union = int((seen | samples.ray_hit).sum())
+        q = float(int((seen & samples.ray_hit).sum()) / union) if union else 1.0
+    else:
+        q = iou(occ, samples)
     return (1.0 - q) + node_cost * count_nodes(d), q, occ
 
 
@@ -222,5 +244,5 @@ def regions(cells: torch.Tensor, samples: Samples, min_cells: int, k: int) -> li
     return out
 
 
-__all__ = ["Budget", "Region", "compile_tree", "core_box", "fit_loss", "iou", "occupancy", "refine", "regions",
-           "residual", "score"]
+__all__ = ["Budget", "Region", "compile_tree", "core_box", "fit_loss", "iou", "objective", "occupancy", "refine",
+           "regions", "residual", "score", "silhouettes"]

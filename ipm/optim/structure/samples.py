@@ -6,9 +6,13 @@ frame) labelled inside or outside by the generalized winding number (robust to o
 grid of cell centres over the bounds, also labelled: the search scores candidates by their occupancy IoU on
 the grid and finds what a candidate misses or adds as connected regions of grid cells.
 
-Masks of K >= 2 views give the same without surface points: a point is inside where every view's mask
-covers its projection (the visual hull, carved point by point), in the cube ``|x| <= extent`` around the
-world origin (DESIGN.md's targets lie in the unit sphere there).
+Masks of K >= 2 views give **silhouette rays** instead: through the pixel centres of each mask reduced to
+:data:`RAYS` pixels a side (area average > 1/2 is object), :data:`RAY_SAMPLES` points evenly along each ray's
+stretch inside the bounds; a tree's silhouette at a ray is the minimum of its distance over those points
+(< 0: the ray meets the solid). The fit and the score compare silhouettes, not volumes, so a tree is not
+asked to fill what the views cannot see. The grid's labels there are the visual hull (a point is inside
+where every view's mask covers its projection, carved point by point in the cube ``|x| <= extent`` around
+the world origin, where DESIGN.md's targets lie): they only say where a new part may go.
 """
 
 from __future__ import annotations
@@ -24,13 +28,16 @@ from ipm.types import Camera, TriMesh
 
 NEAR_SIGMA = 0.02      # offsets of the near-surface volume points (unit-sphere frame)
 PAD = 0.05             # the bounds grown by this share of their diagonal
+RAYS = 32              # silhouette rays per side of each view (masks)
+RAY_SAMPLES = 32       # points along each ray
 
 
 @dataclass(frozen=True)
 class Samples:
     """Target points (float tensors on one device) and labels. ``surface`` (S, 3) or None (masks);
     ``volume`` (V, 3) with ``inside`` (V,) bool; ``grid`` (n³, 3) cell centres of a ``shape`` grid over
-    ``lo``..``hi`` with ``grid_inside`` (n³,) bool."""
+    ``lo``..``hi`` with ``grid_inside`` (n³,) bool; masks: ``rays`` (R, P, 3) points along R silhouette rays
+    and ``ray_hit`` (R,) bool, the ray's pixel is object."""
 
     surface: torch.Tensor | None
     volume: torch.Tensor
@@ -40,6 +47,8 @@ class Samples:
     shape: tuple[int, int, int]
     lo: np.ndarray
     hi: np.ndarray
+    rays: torch.Tensor | None = None
+    ray_hit: torch.Tensor | None = None
 
     @property
     def cell(self) -> np.ndarray:
@@ -51,7 +60,8 @@ class Samples:
             return None if t is None else t.to(device=device, dtype=dtype)
 
         return Samples(f(self.surface), f(self.volume), self.inside.to(device), f(self.grid),
-                       self.grid_inside.to(device), self.shape, self.lo, self.hi)
+                       self.grid_inside.to(device), self.shape, self.lo, self.hi, f(self.rays),
+                       None if self.ray_hit is None else self.ray_hit.to(device))
 
 
 def _grid(lo: np.ndarray, hi: np.ndarray, n: int) -> tuple[np.ndarray, tuple[int, int, int]]:
@@ -105,6 +115,31 @@ def carve(points: torch.Tensor, masks: torch.Tensor, cameras: Sequence[Camera]) 
     return keep
 
 
+def silhouette_rays(masks: torch.Tensor, cameras: Sequence[Camera], lo: np.ndarray, hi: np.ndarray, *,
+                    size: int = RAYS, samples: int = RAY_SAMPLES) -> tuple[torch.Tensor, torch.Tensor]:
+    """Points ``(R, samples, 3)`` along the rays of every view's pixels at ``size`` a side that cross the box
+    ``lo``..``hi``, and whether each ray's pixel is object ``(R,)`` (module docstring). A ray that misses
+    the box cannot meet the tree; one whose pixel is object there is a mask the box does not explain."""
+    from ipm.render.camera import crop_camera, pixel_rays
+    from ipm.render.sdf_silhouette import ray_box
+
+    f64 = torch.float64
+    lo_t, hi_t = torch.as_tensor(lo, dtype=f64), torch.as_tensor(hi, dtype=f64)
+    pts, hits = [], []
+    for m, cam in zip(masks, cameras):
+        H, W = m.shape
+        small = crop_camera(cam.to(f64), 0, 0, W, H, size / max(H, W))
+        origin, dirs = pixel_rays(small)
+        h, w = dirs.shape[:2]
+        cover = torch.nn.functional.interpolate(m[None, None].to(f64), size=(h, w), mode="area")[0, 0] > 0.5
+        t0, t1, ok = ray_box(origin, dirs.reshape(-1, 3), lo_t, hi_t)
+        u = (torch.arange(samples, dtype=f64) + 0.5) / samples
+        t = t0[ok, None] + (t1 - t0)[ok, None] * u
+        pts.append(origin + t[..., None] * dirs.reshape(-1, 3)[ok, None, :])
+        hits.append(cover.reshape(-1)[ok])
+    return torch.cat(pts), torch.cat(hits)
+
+
 def mask_samples(masks, cameras: Sequence[Camera], *, volume: int = 8000, grid: int = 32, extent: float = 1.2,
                  seed: int = 0) -> Samples:
     """Samples of the visual hull of ``masks`` (K, H, W) in views ``cameras`` (module docstring)."""
@@ -137,7 +172,8 @@ def mask_samples(masks, cameras: Sequence[Camera], *, volume: int = 8000, grid: 
     pts, shape = _grid(lo, hi, grid)
     f64 = torch.float64
     vol_t, pts_t = torch.as_tensor(vol, dtype=f64), torch.as_tensor(pts, dtype=f64)
-    return Samples(None, vol_t, carve(vol_t, m, cameras), pts_t, carve(pts_t, m, cameras), shape, lo, hi)
+    rays, hit = silhouette_rays(m, cameras, lo, hi)
+    return Samples(None, vol_t, carve(vol_t, m, cameras), pts_t, carve(pts_t, m, cameras), shape, lo, hi, rays, hit)
 
 
-__all__ = ["Samples", "carve", "mask_samples", "mesh_samples"]
+__all__ = ["Samples", "carve", "mask_samples", "mesh_samples", "silhouette_rays"]
