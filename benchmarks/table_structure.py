@@ -2,9 +2,10 @@
 fixed ``chair`` / ``table`` trees fitted to the same meshes, the BSP conversion written as an SDF tree
 (``ipm convert --to sdftree``) and a dense SDF grid with as many values as the searched tree has parameters.
 
-Targets, every one normalized to DESIGN.md's unit sphere: random trees of 3 and 5 primitives (box, cylinder,
-sphere; joined by union, some cut by subtraction; every primitive changes the solid by at least 5 % of its
-volume: exact ground truth), and the real furniture of ``../shared/data/real/furniture``.
+Targets, every one normalized to DESIGN.md's unit sphere: random trees of 3, 5 and 8 primitives (box,
+cylinder, sphere; joined by union, some cut by subtraction; every primitive changes the solid by at least 5 %
+of its volume: exact ground truth), the ``chair`` and ``table`` preset trees with their sizes scaled at
+random, and the real furniture of ``../shared/data/real/furniture``.
 
 Scores (protocol v2's, in the normalized frame where every method places its result): held-out silhouette
 IoU (16 views), F-score at 0.02 and 0.05, node count of the tree as written; for random trees whether the
@@ -35,6 +36,8 @@ BUDGET = 16000            # search evaluations (StructureSettings' default)
 NODE_BUDGET = 24          # StructureSettings.max_nodes: the BSP tree gets as many nodes
 GRID = 8                  # the SDF grid: 8³ = 512 values, 10-30x a searched tree's parameters
 FIT_BUDGET = 1500         # the fixed trees' fits (ipm fit's default)
+PRESETS = ("chair", "table")   # preset trees sampled with every size scaled by a factor in [0.7, 1.3]
+BSP_SIZES = ((2, 8), (3, 12))  # (convexes, planes) tried for the BSP tree
 
 
 def random_tree(n: int, rng: np.random.Generator) -> dict:
@@ -107,14 +110,14 @@ def normalized(mesh):
 
 def scores(pred, target) -> dict:
     from ipm.bench.protocol import render_masks
-    from ipm.metrics import mask_iou, shape_scores
+    from ipm.metrics import fscore, mask_iou
     from ipm.render.camera import heldout_views
 
     cams = heldout_views(256)
     a, b = render_masks(pred, cams), render_masks(target, cams)
     iou = float(np.mean([mask_iou(x, y) for x, y in zip(a, b)]))
-    s = shape_scores(pred, target, normalize=False)
-    return {"heldout_iou": iou, "fscore@0.02": s.fscore_002, "fscore@0.05": s.fscore_005}
+    return {"heldout_iou": iou, "fscore@0.02": fscore(pred, target, 0.02, normalize=False),
+            "fscore@0.05": fscore(pred, target, 0.05, normalize=False)}
 
 
 def search_row(target, budget: int, seed: int = 0) -> tuple[dict, dict]:
@@ -133,6 +136,16 @@ def search_row(target, budget: int, seed: int = 0) -> tuple[dict, dict]:
     return ({"method": "search", "nodes": count_nodes(r.tree), "parameters": tree_from_json({"tree": r.tree}).n_params,
              "evaluations": r.evaluations, "seconds": seconds, "structure": r.structure, "rounds": r.rounds,
              "stopped": r.stopped, **scores(pred, target)}, r.tree)
+
+
+def preset_sample(name: str, seed: int):
+    """The preset tree ``name`` with every size scaled by a factor in [0.7, 1.3], meshed and normalized."""
+    from ipm.generators import get_generator
+
+    gen = get_generator(name)
+    rng = np.random.default_rng([7, seed])
+    values = {k: float(v) * float(rng.uniform(0.7, 1.3)) for k, v in gen.spec.defaults().items()}
+    return normalized(gen.to_mesh(values, resolution=128))
 
 
 def fixed_row(name: str, path: Path, up: str) -> dict:
@@ -169,7 +182,7 @@ def bsp_row(target, node_budget: int) -> dict:
     from ipm.optim.structure.program import count_nodes
 
     best = None
-    for convexes, planes in ((1, 8), (2, 8), (2, 12), (3, 12), (4, 16)):
+    for convexes, planes in BSP_SIZES:
         t0 = time.perf_counter()
         conv = convert_sdftree(target, seed=0, planes=planes, convexes=convexes)
         seconds = time.perf_counter() - t0
@@ -199,7 +212,7 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
 
     torch.set_num_threads(1)
     rows: list[dict] = []
-    random_sets = [(3, s) for s in range(2 if quick else 8)] + ([] if quick else [(5, s) for s in range(2)])
+    random_sets = [(3, s) for s in range(2 if quick else 6)] + ([] if quick else [(5, 0), (5, 1), (8, 0)])
     for n, seed in random_sets:
         truth = make_random(n, seed)
         target = normalized(tree_mesh(truth))
@@ -212,6 +225,20 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
         rows.append({"target": name, **grid_row(target, GRID ** 3)})
         print(f"{name}: search IoU {row['heldout_iou']:.3f}, {row['nodes']} nodes, equivalent {row['equivalent']}, "
               f"{row['seconds']:.0f} s", file=sys.stderr, flush=True)
+    for preset in PRESETS[:1] if quick else PRESETS:
+        from ipm.io.export import export_mesh
+
+        target = preset_sample(preset, 0)
+        name = f"{preset} tree, sizes x0.7-1.3"
+        row, _ = search_row(target, BUDGET // (4 if quick else 1))
+        rows.append({"target": name, **row})
+        with tempfile.TemporaryDirectory() as tmp:
+            export_mesh(target, Path(tmp) / "t.obj", sidecar=False)
+            rows.append({"target": name, **fixed_row(preset, Path(tmp) / "t.obj", "y")})
+        rows.append({"target": name, **bsp_row(target, NODE_BUDGET)})
+        rows.append({"target": name, **grid_row(target, GRID ** 3)})
+        print(f"{name}: search IoU {row['heldout_iou']:.3f} ({row['nodes']} nodes), "
+              f"fixed {rows[-3]['heldout_iou']:.3f}", file=sys.stderr, flush=True)
     for name, rel, up, fixed in FURNITURE[:1] if quick else FURNITURE:
         target = load_mesh(DATA / rel, up=up)
         row, _ = search_row(target, BUDGET // (4 if quick else 1))
@@ -253,8 +280,8 @@ def write(out_dir: Path, rows: list[dict], quick: bool) -> None:
         f"{BUDGET // (4 if quick else 1)} evaluations (one evaluation: one Adam step or one score of a tree); seed 0.",
         f"- fixed tree: `ipm fit chair|table --target-mesh` ({FIT_BUDGET} evaluations, discrete none); its node "
         "count with the macro expanded.",
-        "- BSP tree: `ipm convert --to sdftree` at the largest of (convexes, planes) = (1, 8), (2, 8), (2, 12), "
-        f"(3, 12), (4, 16) whose tree has at most {NODE_BUDGET} nodes (the search's limit).",
+        "- BSP tree: `ipm convert --to sdftree` at the larger of (convexes, planes) = "
+        f"{', '.join(str(b) for b in BSP_SIZES)} whose tree has at most {NODE_BUDGET} nodes (the search's limit).",
         f"- SDF grid: marching cubes of the exact signed distance on {GRID}³ nodes ({GRID ** 3} values, 10-30x a "
         "searched tree's parameters).",
         "- equivalent: the recovered tree has the truth's primitives up to order (the kinds that add and the "
