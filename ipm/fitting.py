@@ -288,6 +288,10 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
             saved.get("start")
         if (run_dir / STRUCTURE_CHECKPOINT).is_file():
             state = _read_run_json(run_dir / STRUCTURE_CHECKPOINT, run_dir)
+            need = ("round", "beam", "best", "stale", "used", "elapsed", "records")
+            if not isinstance(state, dict) or any(k not in state for k in need) or not state["beam"]:
+                raise InputError(f"--resume {run_dir}: expected a structure search's checkpoint in "
+                                 f"{STRUCTURE_CHECKPOINT} (keys {', '.join(need)}), got another file")
     else:
         cfg = StructureSettings(**settings)
     cfg.check()
