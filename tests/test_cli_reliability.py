@@ -358,6 +358,7 @@ def test_ctrl_c_exits_130_with_a_line(tmp_path):
 
 @pytest.mark.parametrize("what, registry", [("strategies", "ipm.optim.strategies:STRATEGIES"),
                                             ("losses", "ipm.losses:LOSSES"),
+                                            ("edits", "ipm.optim.structure.edits:EDITS"),
                                             ("methods", "ipm.bench.methods:METHODS")])
 def test_list_shows_each_registry_including_new_members(what, registry, capsys):
     """``ipm list`` reads the registries, so a member added by one new file shows up with no other edit."""
