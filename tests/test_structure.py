@@ -242,3 +242,17 @@ def test_an_edit_from_a_new_module(tmp_path, monkeypatch, samples):
         s = StructureSettings(budget=400, polish=50, steps=10, grid=24, edits=("add", name), rounds=2)
         search(samples, s)
         assert sys.modules[f"{pkg}.member"].CALLS   # asked each round for the beam's trees
+
+
+def test_the_tables_random_trees_are_deterministic_and_every_part_matters():
+    from benchmarks.table_structure import MIN_SHARE, every_part_matters, make_random
+
+    pts = torch.as_tensor(np.random.default_rng(0).uniform(-1.2, 1.2, (20000, 3)))
+    for n in (3, 5):
+        a, b = make_random(n, 1), make_random(n, 1)
+        assert a == b and sum(len(k) for k in signature(a)) == n
+        assert every_part_matters(a, pts) and MIN_SHARE > 0
+    # a part hidden inside another does not matter
+    hidden = {"node": "union", "children": [part("part1", "box", [0, 0, 0], [1, 1, 1]),
+                                             part("part2", "sphere", [0, 0, 0], [0.2, 0.2, 0.2])]}
+    assert not every_part_matters(hidden, pts)
