@@ -28,8 +28,9 @@ import numpy as np
 import torch
 
 DATA = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real" / "furniture"
-FURNITURE = (("armchair", "kaolin_armchair.obj", "y", "chair"), ("egg chair", "trimesh_egg_chair.obj", "y", "chair"),
-             ("side table", "trimesh_side_table.obj", "z", "table"))
+# the egg chair (trimesh_egg_chair.obj) is left out: its faces are unwelded and inconsistently oriented, so its
+# winding number is about 0 everywhere and no point is inside it (mesh targets need an inside)
+FURNITURE = (("armchair", "kaolin_armchair.obj", "y", "chair"), ("side table", "trimesh_side_table.obj", "z", "table"))
 KINDS = ("box", "cylinder", "sphere")
 MIN_SHARE = 0.05          # every primitive of a random tree changes the solid by this share of its volume
 BUDGET = 16000            # search evaluations (StructureSettings' default)
@@ -223,6 +224,7 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
         rows.append(row)
         rows.append({"target": name, **bsp_row(target, NODE_BUDGET)})
         rows.append({"target": name, **grid_row(target, GRID ** 3)})
+        write(out_dir, rows, quick)
         print(f"{name}: search IoU {row['heldout_iou']:.3f}, {row['nodes']} nodes, equivalent {row['equivalent']}, "
               f"{row['seconds']:.0f} s", file=sys.stderr, flush=True)
     for preset in PRESETS[:1] if quick else PRESETS:
@@ -237,6 +239,7 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
             rows.append({"target": name, **fixed_row(preset, Path(tmp) / "t.obj", "y")})
         rows.append({"target": name, **bsp_row(target, NODE_BUDGET)})
         rows.append({"target": name, **grid_row(target, GRID ** 3)})
+        write(out_dir, rows, quick)
         print(f"{name}: search IoU {row['heldout_iou']:.3f} ({row['nodes']} nodes), "
               f"fixed {rows[-3]['heldout_iou']:.3f}", file=sys.stderr, flush=True)
     for name, rel, up, fixed in FURNITURE[:1] if quick else FURNITURE:
@@ -246,6 +249,7 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
         rows.append({"target": name, **fixed_row(fixed, DATA / rel, up)})
         rows.append({"target": name, **bsp_row(target, NODE_BUDGET)})
         rows.append({"target": name, **grid_row(target, GRID ** 3)})
+        write(out_dir, rows, quick)
         print(f"{name}: search IoU {row['heldout_iou']:.3f} ({row['nodes']} nodes), "
               f"fixed {rows[-3]['heldout_iou']:.3f}", file=sys.stderr, flush=True)
     write(out_dir, rows, quick)
@@ -285,7 +289,10 @@ def write(out_dir: Path, rows: list[dict], quick: bool) -> None:
         f"- SDF grid: marching cubes of the exact signed distance on {GRID}³ nodes ({GRID ** 3} values, 10-30x a "
         "searched tree's parameters).",
         "- equivalent: the recovered tree has the truth's primitives up to order (the kinds that add and the "
-        "kinds that cut).", "",
+        "kinds that cut).",
+        "- The egg chair of the furniture folder is left out: its faces are unwelded and inconsistently oriented, "
+        "its winding number is about 0 everywhere, so no point is inside it (a mesh target needs an inside; "
+        "`ipm fit --structure search` says so and points to masks).", "",
         "| target | method | held-out IoU | F@0.02 | F@0.05 | nodes | parameters | equivalent | evaluations | s |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]

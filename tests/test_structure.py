@@ -204,6 +204,7 @@ def test_cli_search_from_masks(tmp_path):
     (["--structure", "search", "--target-mesh", "{tmp}/none.obj", "-o", "{tmp}/r"], "file not found"),
     (["--structure", "search", "--target-mesh", "{tmp}/t.obj", "--image", "{tmp}/t.obj", "-o", "{tmp}/r"],
      "takes a mesh or masks only"),
+    (["--structure", "search", "--target-mesh", "{tmp}/open.obj", "-o", "{tmp}/r"], "no point is inside it"),
     (["--structure", "search", "--target-mesh", "{tmp}/t.obj", "-o", "{tmp}/r", "--budget", "0"],
      "--budget: expected at least 1"),
     (["--structure", "search", "--target-mesh", "{tmp}/t.obj", "-o", "{tmp}/r", "--budget", "300"],
@@ -211,6 +212,7 @@ def test_cli_search_from_masks(tmp_path):
 ])
 def test_cli_bad_input_is_one_line(tmp_path, args, msg):
     (tmp_path / "t.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
+    (tmp_path / "open.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 1 1 0\nf 1 2 3\nf 2 4 3\n")
     p = _ipm("fit", *[a.format(tmp=tmp_path) for a in args])
     assert p.returncode == 2, p.stderr
     err = p.stderr.strip().splitlines()

@@ -92,10 +92,15 @@ def mesh_samples(mesh: TriMesh, *, surface: int = 2000, volume: int = 6000, grid
     near = sample_surface(V, F, volume - half, rng) + rng.normal(0.0, NEAR_SIGMA, (volume - half, 3))
     vol = np.concatenate([rng.uniform(lo, hi, (half, 3)), near])
     pts, shape = _grid(lo, hi, grid)
+    grid_in = inside(pts, V, F)
+    if not grid_in.any():
+        raise InputError("target mesh: no point is inside it (its generalized winding number is below 0.5 "
+                         "everywhere: an open or inconsistently oriented surface); fit it from masks instead "
+                         "(ipm render MESH --views 4 -o DIR, then --masks DIR)")
     f64 = torch.float64
     return Samples(torch.as_tensor(surf, dtype=f64), torch.as_tensor(vol, dtype=f64),
                    torch.as_tensor(inside(vol, V, F)), torch.as_tensor(pts, dtype=f64),
-                   torch.as_tensor(inside(pts, V, F)), shape, lo, hi)
+                   torch.as_tensor(grid_in), shape, lo, hi)
 
 
 def carve(points: torch.Tensor, masks: torch.Tensor, cameras: Sequence[Camera]) -> torch.Tensor:
