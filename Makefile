@@ -76,7 +76,7 @@ bench-transport: $(STAMP) ## soft IoU against sinkhorn / sliced where fit and ta
 bench-profile: $(STAMP) ## real vessels' side views: 2D profiles fitted and revolved, results/profile_fit.md (about a minute)
 	$(BIN)/python -m benchmarks.profile_fit -o results/profile_fit.md
 
-table-structure: $(STAMP) ## structure search from meshes: random trees and real furniture against fixed trees, BSP and an SDF grid, results/table_structure/ (about 15 minutes)
+table-structure: $(STAMP) ## structure search from meshes: random trees and real furniture against fixed trees, BSP and an SDF grid, results/table_structure/ (about 30 minutes)
 	$(BIN)/python -m benchmarks.table_structure results/table_structure
 
 table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
