@@ -18,7 +18,8 @@ def _overlap(box: tuple[np.ndarray, np.ndarray], lo: np.ndarray, hi: np.ndarray)
 
 
 def _cut_one(tree: dict, cut: dict, kind: str, what: str, r: int, lo: np.ndarray, hi: np.ndarray) -> list[Proposal]:
-    """``cut`` applied to the one part (not the first, which the root cut covers) overlapping most."""
+    """``cut`` applied only to the part whose box overlaps the region most, where two or more parts overlap it
+    (with one, cutting the whole tree is the same)."""
     scored = [(_overlap(b, lo, hi), path, node) for path, node in parts(tree) if (b := part_box(node)) is not None]
     scored = [x for x in scored if x[0] > 0.0]
     if len(scored) < 2:
