@@ -357,12 +357,19 @@ def contact_sheet(path: Path, drawings: tuple[Drawing, ...], traced: dict, metho
             ax.set_title(f"{d.name}: {title}" if title == "truth" else f"{title} ({len(t.curves)} curves)", fontsize=7)
             ax.set_xticks([])
             ax.set_yticks([])
+    _save_png(fig, path)
+
+
+def _save_png(fig, path: Path) -> None:
+    """Write a matplotlib figure to ``path`` as PNG, atomically, and close it."""
+    import matplotlib.pyplot as plt
+
+    from ipm.files import write_bytes
+
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
-    from ipm.files import write_bytes
-
     write_bytes(path, buf.getvalue())
 
 
@@ -382,13 +389,7 @@ def inputs_sheet(path: Path, drawings: tuple[Drawing, ...]) -> None:
             ax.set_title(f"{d.name}: {what}", fontsize=8)
             ax.set_xticks([])
             ax.set_yticks([])
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    from ipm.files import write_bytes
-
-    write_bytes(path, buf.getvalue())
+    _save_png(fig, path)
 
 
 def write_csv(path: Path, rows: list[dict]) -> None:

@@ -219,13 +219,7 @@ def bridge_gaps(curves: list[tuple[np.ndarray, bool]], bridge: float,
                 refused.add((tuple(qa), tuple(qb)))
                 continue
             link = link[1:-1]
-        pa = curves[ka][0] if sa == 1 else curves[ka][0][::-1]
-        if ka == kb:
-            curves[ka] = (np.concatenate([pa, link, pa[:1]]), True)
-            continue
-        pb = curves[kb][0] if sb == 0 else curves[kb][0][::-1]
-        joined = np.concatenate([pa, link, pb])
-        curves = [c for i, c in enumerate(curves) if i not in (ka, kb)] + [(joined, False)]
+        curves = _joined(curves, ka, sa, kb, sb, link)
 
 
 def _end_direction(q: np.ndarray, r: float) -> np.ndarray:
@@ -304,13 +298,19 @@ def join_corners(curves: list[tuple[np.ndarray, bool]], reach: float, r: float,
             refused.add((tuple(qa), tuple(qb)))
             continue
         link = link[1:-1]
-        pa = curves[ka][0] if sa == 1 else curves[ka][0][::-1]
-        if ka == kb:
-            curves[ka] = (np.concatenate([pa, link, pa[:1]]), True)
-            continue
-        pb = curves[kb][0] if sb == 0 else curves[kb][0][::-1]
-        joined = np.concatenate([pa, link, pb])
-        curves = [c for i, c in enumerate(curves) if i not in (ka, kb)] + [(joined, False)]
+        curves = _joined(curves, ka, sa, kb, sb, link)
+
+
+def _joined(curves: list, ka: int, sa: int, kb: int, sb: int, link: np.ndarray) -> list:
+    """``curves`` with the end ``sa`` of curve ``ka`` joined through the points ``link`` to the end ``sb`` of
+    curve ``kb`` (0: its first point, 1: its last); one curve's two ends joined close it."""
+    pa = curves[ka][0] if sa == 1 else curves[ka][0][::-1]
+    if ka == kb:
+        out = list(curves)
+        out[ka] = (np.concatenate([pa, link, pa[:1]]), True)
+        return out
+    pb = curves[kb][0] if sb == 0 else curves[kb][0][::-1]
+    return [c for i, c in enumerate(curves) if i not in (ka, kb)] + [(np.concatenate([pa, link, pb]), False)]
 
 
 def resample(pts: np.ndarray, spacing: float, closed: bool = False) -> np.ndarray:
