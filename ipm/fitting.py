@@ -23,6 +23,7 @@ from pathlib import Path
 import torch
 
 from ipm.errors import InputError
+from ipm.threads import one_by_default
 from ipm.types import FitResult
 
 log = logging.getLogger(__name__)
@@ -40,6 +41,7 @@ def _settings_from_json(d: dict):
     return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
 
 
+@one_by_default
 def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
         depth: str | Path | None = None, depth_scale: float = 0.001, parts: str | Path | None = None,
         image: str | Path | None = None, mask: str | Path | None = None, box=None,
@@ -255,6 +257,7 @@ STRUCTURE_TRAJECTORY = "structures.jsonl"
 STRUCTURE_RESOLUTION = 128   # mesh.obj: what `ipm generate tree.json` meshes at by default
 
 
+@one_by_default
 def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks: str | Path | None = None,
                   start: str | Path | None = None, run_dir: str | Path | None = None, resume: bool = False,
                   progress: Callable | None = None, device=None, **settings) -> dict:

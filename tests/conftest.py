@@ -71,8 +71,9 @@ def rng() -> np.random.Generator:
 
 
 @pytest.fixture(autouse=True)
-def _torch_threads():
-    # one thread per xdist worker: `make test` runs two workers on two cores, and two OpenMP pools of two
-    # threads each wait on each other (fits measured 5-8x slower that way)
-    torch.set_num_threads(1 if os.environ.get("PYTEST_XDIST_WORKER") else 2)
+def _torch_threads(monkeypatch):
+    # one thread, as everywhere in ipm (ipm.threads): `make test` runs two workers on two cores, and two
+    # OpenMP pools of two threads each wait on each other (fits measured 5-8x slower that way)
+    monkeypatch.delenv("IPM_THREADS", raising=False)  # an in-process `ipm --threads N` sets it (ipm.threads.ask)
+    torch.set_num_threads(1)
     yield

@@ -131,3 +131,31 @@ def test_falls_back_to_eager_without_the_kernel(monkeypatch):
     monkeypatch.setattr(soft, "_NATIVE", [None])
     assert torch.equal(soft_silhouette(verts, faces, cam, backend="native"), expected)
     assert torch.equal(soft_silhouette(verts, faces, cam), expected)
+
+
+def test_the_kernel_gives_the_same_bits_whatever_instructions_it_is_built_for(tmp_path, monkeypatch):
+    """Issue #28: built for this CPU (-march=native) and for the plainest x86-64 (SSE2, no FMA), the kernel's
+    images and gradients agree bit for bit: no flag lets the vector width or fused multiply-adds change the
+    arithmetic, so another CPU computes the same silhouettes."""
+    import platform
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("compares x86-64 instruction sets")
+    flags = soft._NATIVE_FLAGS
+    assert not any(f in ("-ffast-math", "-Ofast", "-ffp-contract=fast", "-funsafe-math-optimizations")
+                   for cflags, _ in flags for f in cflags)
+    assert all("-ffp-contract=off" in cflags for cflags, _ in flags)
+    verts, faces = random_mesh(3, 400, 1500, dtype=torch.float32)
+    cam = random_camera(3, 96, 80)
+    out = {}
+    for march in ("-march=native", "-march=x86-64"):
+        built = tuple(([f if not f.startswith("-march=") else march for f in cflags], libs) for cflags, libs in flags)
+        monkeypatch.setattr(soft, "_NATIVE_FLAGS", built)
+        monkeypatch.setattr(soft, "_NATIVE", [])
+        monkeypatch.setenv("IPM_CACHE_DIR", str(tmp_path / march))
+        for dtype in (torch.float32, torch.float64):
+            out[march, dtype] = _image_and_grad(verts.to(dtype), faces, cam, "native", sigma=1.0)
+    monkeypatch.setattr(soft, "_NATIVE", [])
+    for dtype in (torch.float32, torch.float64):
+        (s0, g0), (s1, g1) = out["-march=native", dtype], out["-march=x86-64", dtype]
+        assert torch.equal(s0, s1) and torch.equal(g0, g1), dtype

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm import threads
 from ipm.bench.config import Cell, Experiment, load_experiment
 from ipm.bench.methods import NO_CUES, Cues
 from ipm.bench.protocol import (
@@ -172,11 +173,15 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
     :class:`~ipm.bench.methods.Task` (:func:`target_views`) and its row lists them (``cues``:
     ``["depth", "parts:windows"]``).
     """
+    with threads.using():  # one thread unless --threads or IPM_THREADS asked for more (ipm.threads)
+        return _run_cell(exp_path, cell, out_dir)
+
+
+def _run_cell(exp_path: str, cell: Cell, out_dir: str | None) -> dict:
     from ipm.bench.methods import METHODS, Task, requested_cues
     from ipm.io.export import export_mesh
     from ipm.metrics import mask_iou, shape_scores
 
-    torch.set_num_threads(1 if os.environ.get("IPM_BENCH_WORKER") else torch.get_num_threads())
     exp_path = str(exp_path)
     exp = load_experiment(exp_path)
     spec = exp.method(cell.method)
@@ -213,6 +218,9 @@ def run_cell(exp_path: str, cell: Cell, out_dir: str | None = None) -> dict:
                      normalize=False)
     row.update(s.to_json())
     row.update(status="ok", evaluations=pred.evaluations, wall_time_s=round(pred.wall_time_s, 3))
+    for key in ("discrete", "loss"):  # a generator fit's discrete values and final loss
+        if key in pred.info:
+            row[key] = pred.info[key]
     if target.truth is not None:
         row["hidden_discrete"] = _hidden(exp_path, cell.target, cell.views, cues)
         if "params" in pred.info and settings.get("generator") == target.generator:
@@ -327,7 +335,6 @@ def _executor(workers: int, scheduler: str | None):
         return
     from concurrent.futures import ProcessPoolExecutor, as_completed
 
-    os.environ["IPM_BENCH_WORKER"] = "1"
     pool = ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent, initargs=(os.getpid(),))
 
     def submit_pool(exp_path, cells, out_dir):

@@ -43,16 +43,18 @@ def _options(
     verbose: Annotated[bool, typer.Option("-v", "--verbose", help="log debug messages on stderr")] = False,
     quiet: Annotated[bool, typer.Option("-q", "--quiet", help="log errors only")] = False,
     debug: Annotated[bool, typer.Option("--debug", help="show the traceback of internal errors")] = False,
-    threads: Annotated[int, typer.Option("--threads", min=1, max=256, help=(
-        "torch CPU threads. Default 1: with one thread a run is bit-identical for the same inputs, seed "
-        "and settings (also across --resume); more threads may change results in float rounding"))] = 1,
+    threads: Annotated[int | None, typer.Option("--threads", min=1, max=256, help=(
+        "torch CPU threads (default: $IPM_THREADS, else 1), used as far as cores are idle. With one thread a "
+        "run is bit-identical for the same inputs, seed and settings (also across --resume); more threads "
+        "change results within the fits' tolerance, not bit for bit"), show_default=False)] = None,
 ) -> None:
     """Inverse procedural modeling: differentiable generators, Jacobians, silhouettes, fitting."""
-    from ipm.cli.common import set_threads, setup_logging
+    from ipm import threads as T
+    from ipm.cli.common import setup_logging
 
     _STATE["debug"] = debug
     setup_logging("debug" if verbose else "error" if quiet else "info")
-    set_threads(threads)
+    T.ask(threads)
 
 
 for _name in COMMANDS:

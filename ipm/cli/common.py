@@ -65,16 +65,6 @@ def setup_logging(level: str = "info") -> None:
     pyw.setLevel(logging.ERROR if level == "error" else logging.WARNING)
 
 
-def set_threads(n: int) -> None:
-    """Use ``n`` torch CPU threads: set now if torch is loaded, else through ``OMP_NUM_THREADS`` (read when
-    torch loads), so that ``ipm --help`` does not pay for importing torch."""
-    import os
-
-    os.environ["OMP_NUM_THREADS"] = str(n)
-    if "torch" in sys.modules:
-        sys.modules["torch"].set_num_threads(n)
-
-
 def resolve_device(name: str) -> torch.device:
     """``auto`` -> cuda if available else cpu; ``cpu``; ``cuda`` (error if unavailable)."""
     import torch

@@ -43,7 +43,9 @@ ARMCHAIR = MUG.parent.parent / "furniture" / "kaolin_armchair.obj"
 STRUCTURE_BUDGET = 8000
 
 
-def fit_real_mug(out: Path, budget: int, size: int) -> dict:
+def fit_real_mug(out: Path, budget: int, size: int, camera_eps: float = 0.0, scores_only: bool = False) -> dict:
+    """The dishes generator fitted to 2 protocol views of the real mug scan, scored as protocol v2 scores it.
+    ``camera_eps`` moves the cameras' eyes by that much relative (benchmarks/perturbation.py)."""
     import ipm
     from ipm.io.masks import save_mask_set
     from ipm.io.meshes import load_mesh
@@ -55,6 +57,10 @@ def fit_real_mug(out: Path, budget: int, size: int) -> dict:
         raise SystemExit(f"demo: real data not found at {MUG.resolve()} (expected ../shared/data beside the project)")
     target = load_mesh(MUG.resolve(), up="z", normalize=True)
     cams = input_views(2, size)
+    if camera_eps:
+        from dataclasses import replace
+
+        cams = [replace(c, eye=c.eye * (1.0 + camera_eps)) for c in cams]
     masks = [rasterize_mesh(target, c).mask for c in cams]
     save_mask_set(out / "mug_masks", masks, cams)
     t0 = time.perf_counter()
@@ -71,6 +77,10 @@ def fit_real_mug(out: Path, budget: int, size: int) -> dict:
     scores = {"input_view_iou": result.scores.get("iou_per_view"), "heldout_iou_mean": float(np.mean(held_iou)),
               **s.to_json(), "evaluations": result.evaluations, "wall_time_s": round(wall, 1)}
     (out / "mug_fit" / "scores.json").write_text(json.dumps(scores, indent=2) + "\n")
+    if scores_only:
+        return {"scores": {"heldout_iou": scores["heldout_iou_mean"]},
+                "discrete": {k: result.params[k] for k in ("has_handle",)}, "loss": result.loss,
+                "wall_time_s": result.wall_time_s}
     return scores
 
 
@@ -272,6 +282,9 @@ def main() -> None:
     ap.add_argument("--budget", type=int, default=200)
     ap.add_argument("--size", type=int, default=128)
     a = ap.parse_args()
+    from ipm import threads
+
+    threads.ask()  # one thread unless IPM_THREADS says otherwise (ipm.threads)
     out = Path(a.out)
     out.mkdir(parents=True, exist_ok=True)
     torch.manual_seed(0)

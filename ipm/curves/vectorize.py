@@ -16,6 +16,7 @@ from ipm.curves.init import estimate_half_width, initial_data, skeleton
 from ipm.curves.settings import Curve, Vectorized, VectorizeSettings
 from ipm.curves.strokes import calibrate_width
 from ipm.errors import InputError
+from ipm.threads import one_by_default
 
 log = logging.getLogger("ipm.curves")
 
@@ -41,6 +42,7 @@ def check_ink(ink, cell: int) -> None:
         raise InputError("nothing to vectorize: the image is all ink (no paper)")
 
 
+@one_by_default
 def vectorize(ink, settings: VectorizeSettings = VectorizeSettings()) -> Vectorized:
     """Vectorize ``ink`` (H, W) float in [0, 1], 1 = stroke (numpy or torch; the fit runs on a torch
     input's device, numpy on the CPU). Deterministic for the same input, settings and seed."""

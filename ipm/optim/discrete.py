@@ -139,11 +139,11 @@ def halving_rungs(n: int) -> int:
     return math.ceil(math.log2(n)) + 1 if n > 1 else 1
 
 
-def halving(first: list[tuple[torch.Tensor, dict]], refine: Refine,
-            steps: int) -> list[tuple[torch.Tensor, dict, float]]:
+def halving(first: list[tuple[torch.Tensor, dict]], refine: Refine, steps: int,
+            keep: int = 1) -> list[tuple[torch.Tensor, dict, float]]:
     """Successive halving (Jamieson and Talwalkar, AISTATS 2016): every candidate is refined ``steps``
-    steps, then the better half (by loss) twice as many, and so on until one is left, which is
-    refined once more at its rung's steps; each rung costs about the same. Returns every
+    steps, then the better half (by loss) twice as many, and so on until ``keep`` or fewer are left,
+    which are refined once more at their rung's steps; each rung costs about the same. Returns every
     candidate ``(x, discrete, loss)`` in the order given, with its latest refinement (the dropped ones
     keep theirs). :class:`~ipm.optim.evaluator.BudgetExhausted` from ``refine`` is passed on."""
     pop = [(x, d, math.inf) for x, d in first]
@@ -154,8 +154,8 @@ def halving(first: list[tuple[torch.Tensor, dict]], refine: Refine,
             x, d, _ = pop[i]
             xr, loss = refine(x, d, k)
             pop[i] = (xr, d, loss)
-        if len(alive) == 1:
+        if len(alive) <= keep:
             break
-        alive = sorted(alive, key=lambda i: pop[i][2])[: len(alive) // 2]
+        alive = sorted(alive, key=lambda i: pop[i][2])[: max(keep, len(alive) // 2)]
         k *= 2
     return pop

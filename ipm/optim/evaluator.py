@@ -25,6 +25,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from ipm import threads
 from ipm.errors import InputError
 
 log = logging.getLogger(__name__)
@@ -103,6 +104,8 @@ class Evaluator:
             g = torch.tensor(rec["grad"], dtype=torch.float64) if rec.get("grad") is not None else None
             extras = {k: rec[k] for k in rec if k not in ("i", "x", "discrete", "loss", "grad", "phase", "t")}
         else:
+            if self.count % threads.RECHECK == 0:
+                threads.adapt()  # fewer torch threads while other processes take the cores
             loss_t, g_t, extras = self.objective(x, disc, grad)
             loss = float(loss_t.detach())
             if not math.isfinite(loss):
