@@ -86,3 +86,6 @@ clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
 .PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure clean
+
+bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
+	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

@@ -32,6 +32,7 @@ import sys
 import tempfile
 import time
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,21 +59,44 @@ def _moved_cameras(cams, eps: float):
     return [replace(c, eye=c.eye * (1.0 + eps)) for c in cams]
 
 
-def _move_starts(eps: float) -> None:
-    """Every start of every fit in this process moved by ``eps`` relative, alternating in sign."""
+@contextmanager
+def applied(variant: str):
+    """Run the block under ``variant`` (:data:`VARIANTS`) in this process, and undo it after: its environment
+    (read at each render, so ``eager`` works in process; ``isa`` does not: torch reads it once, at start),
+    its thread count (used even where the other core is busy), starts moved by ``start`` relative
+    (:meth:`ipm.optim.problem.Problem.x0`, alternating in sign). Yields the target's relative move."""
     import torch
 
+    from ipm import threads
     from ipm.optim.problem import Problem
 
-    x0 = Problem.x0
+    v = VARIANTS[variant]
+    saved_env = {k: os.environ.get(k) for k in v.get("env", {})}
+    saved = (threads.usable, Problem.x0, torch.get_num_threads())
+    os.environ.update(v.get("env", {}))
+    if v.get("threads", 1) > 1:
+        threads.usable = lambda n: min(n, threads.cores())
+    torch.set_num_threads(int(v.get("threads", 1)))
+    if v.get("start"):
+        eps, x0 = float(v["start"]), Problem.x0
 
-    def moved(self, *a, **kw):
-        x = x0(self, *a, **kw)
-        sign = torch.ones_like(x)
-        sign[1::2] = -1.0
-        return (x * (1.0 + eps * sign)).clamp(0.0, 1.0)
+        def moved(self, *a, **kw):
+            x = x0(self, *a, **kw)
+            sign = torch.ones_like(x)
+            sign[1::2] = -1.0
+            return (x * (1.0 + eps * sign)).clamp(0.0, 1.0)
 
-    Problem.x0 = moved
+        Problem.x0 = moved
+    try:
+        yield float(v.get("target", 0.0))
+    finally:
+        threads.usable, Problem.x0 = saved[0], saved[1]
+        torch.set_num_threads(saved[2])
+        for k, old in saved_env.items():
+            if old is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = old
 
 
 def case_photo(tmp: Path, target_eps: float) -> dict:
@@ -158,22 +182,14 @@ CASES = {name[5:]: fn for name, fn in dict(globals()).items() if name.startswith
 
 
 def run_one(case: str, variant: str) -> dict:
-    """One case under one variant in this process (its environment already set by :func:`spawn`)."""
-    import torch
-
+    """One case under one variant in this process (:func:`applied`; ``isa`` needs :func:`spawn`)."""
     from ipm import threads
 
-    v = VARIANTS[variant]
-    if v.get("threads", 1) > 1:  # the threads asked for, busy cores or not
-        threads.usable = lambda n: min(n, threads.cores())
-    torch.set_num_threads(int(v.get("threads", 1)))
-    if v.get("start"):
-        _move_starts(float(v["start"]))
     t0 = time.perf_counter()
-    with tempfile.TemporaryDirectory() as tmp:
-        out = CASES[case](Path(tmp), float(v.get("target", 0.0)))
-    out.update(case=case, variant=variant, seconds=round(time.perf_counter() - t0, 1),
-               threads=threads.usable(threads.requested()))
+    with applied(variant) as target_eps, tempfile.TemporaryDirectory() as tmp:
+        out = CASES[case](Path(tmp), target_eps)
+        used = threads.usable(threads.requested())
+    out.update(case=case, variant=variant, seconds=round(time.perf_counter() - t0, 1), threads=used)
     return out
 
 
