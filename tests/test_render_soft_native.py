@@ -128,7 +128,7 @@ def test_falls_back_to_eager_without_the_kernel(monkeypatch):
     verts, faces = random_mesh(2)
     cam = random_camera(2)
     expected = soft_silhouette(verts, faces, cam, backend="eager")
-    monkeypatch.setattr(soft, "_NATIVE", [None])
+    monkeypatch.setattr(soft, "_kernel", lambda: None)
     assert torch.equal(soft_silhouette(verts, faces, cam, backend="native"), expected)
     assert torch.equal(soft_silhouette(verts, faces, cam), expected)
 
@@ -141,21 +141,39 @@ def test_the_kernel_gives_the_same_bits_whatever_instructions_it_is_built_for(tm
 
     if platform.machine() not in ("x86_64", "AMD64"):
         pytest.skip("compares x86-64 instruction sets")
-    flags = soft._NATIVE_FLAGS
+    from ipm import native
+
+    flags = native.FLAGS
     assert not any(f in ("-ffast-math", "-Ofast", "-ffp-contract=fast", "-funsafe-math-optimizations")
                    for cflags, _ in flags for f in cflags)
     assert all("-ffp-contract=off" in cflags for cflags, _ in flags)
     verts, faces = random_mesh(3, 400, 1500, dtype=torch.float32)
     cam = random_camera(3, 96, 80)
     out = {}
-    for march in ("-march=native", "-march=x86-64"):
-        built = tuple(([f if not f.startswith("-march=") else march for f in cflags], libs) for cflags, libs in flags)
-        monkeypatch.setattr(soft, "_NATIVE_FLAGS", built)
-        monkeypatch.setattr(soft, "_NATIVE", [])
-        monkeypatch.setenv("IPM_CACHE_DIR", str(tmp_path / march))
-        for dtype in (torch.float32, torch.float64):
-            out[march, dtype] = _image_and_grad(verts.to(dtype), faces, cam, "native", sigma=1.0)
-    monkeypatch.setattr(soft, "_NATIVE", [])
+    try:
+        for march in ("-march=native", "-march=x86-64"):
+            built = tuple(([f if not f.startswith("-march=") else march for f in cflags], libs)
+                          for cflags, libs in flags)
+            monkeypatch.setattr(native, "FLAGS", built)
+            monkeypatch.setenv("IPM_CACHE_DIR", str(tmp_path / march))
+            native.forget("soft")
+            for dtype in (torch.float32, torch.float64):
+                out[march, dtype] = _image_and_grad(verts.to(dtype), faces, cam, "native", sigma=1.0)
+    finally:
+        native.forget("soft")
     for dtype in (torch.float32, torch.float64):
         (s0, g0), (s1, g1) = out["-march=native", dtype], out["-march=x86-64", dtype]
         assert torch.equal(s0, s1) and torch.equal(g0, g1), dtype
+
+
+def test_the_kernels_header_declares_what_its_source_defines():
+    """ipm/native/soft.h is the one declaration of the kernel's functions: the C source includes it (so the
+    compiler checks the definitions against it) and cffi binds the library from it."""
+    from ipm import native
+
+    decl = native.declarations("soft")
+    for name in ("soft_fwd_f", "soft_fwd_d", "soft_bwd_f", "soft_bwd_d"):
+        assert f"{name}(" in decl
+        assert callable(getattr(native.load("soft").lib, name))
+    assert '#include "soft.h"' in (native.HERE / "soft.c").read_text()
+    assert not any(ln.lstrip().startswith("#") for ln in decl.splitlines())
