@@ -20,7 +20,8 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import torch
@@ -64,11 +65,15 @@ class Evaluator:
         self.replay = list(replay)
         self.progress = progress
         self.count = 0
+        # the count at which the running phase stops (running(until=...)); the budget outside phases
+        self.cap = self.budget
+        # what the objective evaluates (ipm.optim.phases.Phase): None calls objective(x, discrete, grad)
+        self.mode = None
         self.best = Best()
         self.phase = "start"
         self.last: dict = {}   # the latest record, live or replayed
-        # False while evaluations of another objective run (Problem.use_parts off): counted and recorded,
-        # but not candidates for the best point
+        # False while evaluations of another objective run (a phase with keep_best off: the outline without
+        # part labels): counted and recorded, but not candidates for the best point
         self.keep_best = True
         self.best_by_discrete: dict[tuple, Best] = {}
         self.t0 = time.perf_counter()
@@ -82,14 +87,32 @@ class Evaluator:
 
     @property
     def remaining(self) -> int:
-        return self.budget - self.count
+        return self.cap - self.count
+
+    @contextmanager
+    def running(self, mode=None, *, label: str | None = None, until: int | None = None) -> Iterator[Evaluator]:
+        """Evaluate as phase ``mode`` (an :class:`ipm.optim.phases.Phase`: its terms, blur and whether its
+        points are candidates for the result) under the record label ``label``, stopping at evaluation
+        ``until`` (at most the budget; default: where the enclosing phase stops) within the block; what was in force
+        before comes back after it."""
+        saved = (self.mode, self.keep_best, self.phase, self.cap)
+        if mode is not None:
+            self.mode, self.keep_best = mode, mode.keep_best
+        if label is not None:
+            self.phase = label
+        if until is not None:
+            self.cap = min(self.budget, int(until))
+        try:
+            yield self
+        finally:
+            self.mode, self.keep_best, self.phase, self.cap = saved
 
     @property
     def replaying(self) -> bool:
         return self.count < len(self.replay)
 
     def __call__(self, x: torch.Tensor, discrete: dict, *, grad: bool = True) -> tuple[float, torch.Tensor | None]:
-        if self.count >= self.budget:
+        if self.count >= self.cap:
             raise BudgetExhausted
         x = x.detach().to(torch.float64).clamp(0.0, 1.0)
         xs = [float(v) for v in x.tolist()]
@@ -106,7 +129,10 @@ class Evaluator:
         else:
             if self.count % threads.RECHECK == 0:
                 threads.adapt()  # fewer torch threads while other processes take the cores
-            loss_t, g_t, extras = self.objective(x, disc, grad)
+            if self.mode is None:
+                loss_t, g_t, extras = self.objective(x, disc, grad)
+            else:
+                loss_t, g_t, extras = self.objective(x, disc, grad, self.mode)
             loss = float(loss_t.detach())
             if not math.isfinite(loss):
                 loss = 1e6  # a degenerate shape: steer away instead of crashing the search

@@ -17,11 +17,14 @@ import torch
 
 from ipm.optim import discrete as D
 from ipm.optim import gradient as G
+from ipm.optim import phases
 from ipm.optim.encoding import DIST, ELEV, FOV, LOG2S_RANGE, T_RANGE, YAW_RANGE
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.optim.phases import OUTLINE, OUTLINE_SHARE, OUTLINE_STEPS, SEARCH
 from ipm.optim.pose import initial_starts, pose_grid, preset_starts, spread_starts, yaw_free, yaw_turns
 from ipm.optim.problem import Problem
-from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, POLISH_SIGMA_FACTOR, FitSettings
+from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, FitSettings
+from ipm.optim.shapes import POLISH_SIGMA_FACTOR
 from ipm.optim.strategies import STRATEGIES
 from ipm.optim.targets import MaskTarget, MeshTarget
 from ipm.optim.ties import TIE_SHARE, break_ties
@@ -33,10 +36,6 @@ __all__ = [
     "fit_lr", "hard_scores", "initial_starts", "pose_grid", "preset_starts", "run_fit", "spread_starts",
     "yaw_free",
 ]
-
-OUTLINE_SHARE = 0.15  # of the budget: the outline's refinement before a search with part labels or depth
-OUTLINE_STEPS = 0.02  # of the budget: the outline's refit of a candidate with other discrete values
-
 
 def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSettings) -> None:
     """Before a discrete search judged by part labels or depth: the first start refined on the outline
@@ -52,27 +51,21 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
     can turn the handle towards where the depth wants it. Adam's steps have the same size whatever the
     gradient's, so under it the window sizes, which the outline barely sees, drifted (1.5 -> 2.9 m)."""
     starts = space.starts
-    ev.phase = "outline"
-    prob.use_parts = False
     try:
-        xo, _ = G.refine(ev, starts[0][0], starts[0][1], max(1, int(settings.budget * OUTLINE_SHARE)), "lbfgs",
-                         mask=prob.search_mask)
+        with ev.running(OUTLINE, label="outline"):
+            xo, _ = G.refine(ev, starts[0][0], starts[0][1], max(1, int(settings.budget * OUTLINE_SHARE)), "lbfgs",
+                             mask=prob.search_mask)
     except BudgetExhausted:
         xo = starts[0][0]
-    finally:
-        prob.use_parts = True
-    ev.forget_best()  # the outline's losses lack the labels: not comparable
+    ev.forget_best()  # the start's losses came before the outline was in place
     space.starts[0] = (xo, starts[0][1])
 
     def outline(x: torch.Tensor, d: dict) -> torch.Tensor:
-        prob.use_parts, ev.keep_best = False, False
-        try:
+        with ev.running(OUTLINE):
             if ev.remaining <= 0:
                 raise BudgetExhausted
             steps = min(max(5, int(settings.budget * OUTLINE_STEPS)), ev.remaining)
             return G.refine(ev, x, d, steps, "lbfgs", mask=prob.search_mask)[0]
-        finally:
-            prob.use_parts, ev.keep_best = True, True
 
     space.outline = outline
 
@@ -140,27 +133,36 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     # the tie rule's evaluations (one per searched discrete value) are kept from the polish; those it
     # does not need go back to the winner
     n_tie = len(prob.searched) if settings.ties and isinstance(target, MaskTarget) else 0
-    ev.budget = max(ev.count + 1, settings.budget - polish)
     # with nothing discrete to search, every strategy is the multistart of "none"
     strategy = STRATEGIES[settings.discrete if space.discrete else "none"]
-    strategy(ev, space, refine, rng, settings)
-    ev.budget = settings.budget - n_tie
+    with ev.running(SEARCH, until=max(ev.count + 1, settings.budget - polish)):
+        strategy(ev, space, refine, rng, settings)
     # Polish: the two best discrete candidates share what is left (close competitors are often only
-    # separated after longer refinement), then the best of all gets the rest.
+    # separated after longer refinement), then the best of all gets the rest. Silhouettes of meshes are
+    # polished at a finer blur: the leaders are re-evaluated at it by their refinement.
     leaders = ev.leaders(2) if space.discrete else ev.leaders(1)
-    if isinstance(target, MaskTarget) and gen.kind == "mesh" and ev.remaining > 0:
-        prob.sigma_factor = POLISH_SIGMA_FACTOR
-        ev.forget_best()  # the leaders are re-evaluated with the finer blur by their refinement
-    for i, lead in enumerate(leaders):
-        if ev.remaining <= 0:
-            break
-        ev.phase = f"polish:{i}"
-        share = ev.remaining // (len(leaders) - i)
-        try:
-            G.refine(ev, lead.x, lead.discrete, share, settings.local, lr / 2, mask=prob.pose_mask)
-        except BudgetExhausted:
-            break
-    ev.budget = settings.budget
+    finer = (isinstance(target, MaskTarget) and prob.shape.polish_sigma != 1.0
+             and settings.budget - n_tie - ev.count > 0)
+    polishing = phases.polish(prob.shape.polish_sigma) if finer else SEARCH
+    if finer:
+        ev.forget_best()
+    with ev.running(polishing, until=settings.budget - n_tie):
+        for i, lead in enumerate(leaders):
+            if ev.remaining <= 0:
+                break
+            ev.phase = f"polish:{i}"
+            share = ev.remaining // (len(leaders) - i)
+            try:
+                G.refine(ev, lead.x, lead.discrete, share, settings.local, lr / 2, mask=prob.pose_mask)
+            except BudgetExhausted:
+                break
+    with ev.running(polishing):
+        return _finish(prob, ev, gen, starts, settings, n_tie, lr)
+
+
+def _finish(prob: Problem, ev: Evaluator, gen, starts, settings: FitSettings, n_tie: int, lr: float
+            ) -> tuple[FitResult, Problem, dict]:
+    """The tie rule and the final refinement of the winner with what is left of the budget."""
     x, d, loss = ev.best.x, ev.best.discrete, ev.best.loss
     tied: tuple[str, ...] = ()
     if x is None:  # a budget too small for a single evaluation of the search

@@ -1,32 +1,38 @@
 """The problem a fit solves: a generator, a target and the search vector's layout
-(:mod:`ipm.optim.encoding`), turned into one objective ``(x, discrete, need_grad) -> (loss, grad, extras)``.
+(:mod:`ipm.optim.encoding`), turned into one objective ``(x, discrete, need_grad[, phase]) -> (loss, grad,
+extras)``.
 
-The generator's output is first brought to a canonical frame (bounding-box center at the origin, longest
-side 2, measured once on the starting shape), then posed; a mesh target's fit starts with the scale that
-gives the starting shape the target's bounding sphere. One evaluation is one render of every view plus
-the loss (or, for a mesh target, one loss).
+The generator is seen through its shape adapter (:mod:`ipm.optim.shapes`: the only code that knows whether
+it makes meshes or signed distances); the loss is the sum of the terms that apply to the target
+(:mod:`ipm.optim.terms`), less those the phase leaves out (:class:`~ipm.optim.phases.Phase`). The
+generator's output is first brought to a canonical frame (bounding-box center at the origin, longest side 2,
+measured once on the starting shape), then posed; a mesh target's fit starts with the scale that gives the
+starting shape the target's bounding sphere. One evaluation is one render of every view plus the loss (or,
+for a mesh target, one loss).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 from collections.abc import Mapping
 from typing import TYPE_CHECKING
 
-import numpy as np
 import torch
 
 from ipm import losses as L
 from ipm.errors import InputError
 from ipm.losses import cues as C
 from ipm.optim import encoding as E
+from ipm.optim.phases import SEARCH, Phase
+from ipm.optim.shapes import Pose, rot_y, shape_for
 from ipm.optim.targets import MaskTarget, MeshTarget
+from ipm.optim.terms import Evaluation, active_terms
+from ipm.optim.terms.outside import OUTSIDE_WEIGHT, outside_share
+from ipm.optim.terms.silhouette import centroids
 from ipm.params import Param
 from ipm.types import Camera, TriMesh
 
-# soft-rasterizer blur (px^2) of the part masks compared with part labels (Problem._soft_parts)
-PARTS_SIGMA = 0.1
+__all__ = ["OUTSIDE_WEIGHT", "Problem", "centroids", "outside_share", "rot_y"]
 
 if TYPE_CHECKING:
     from ipm.optim.settings import FitSettings
@@ -44,61 +50,14 @@ def _narrowed(p: Param, rng) -> Param:
     return dataclasses.replace(p, lo=lo, hi=hi, default=min(max(p.default, lo), hi))
 
 
-def centroids(masks: torch.Tensor) -> list[list[float]]:
-    """Pixel centroids (x, y) of soft masks ``(K, H, W)`` (pixel centers at +0.5, row 0 at the top)."""
-    K, H, W = masks.shape
-    ys = torch.arange(H, dtype=masks.dtype, device=masks.device) + 0.5
-    xs = torch.arange(W, dtype=masks.dtype, device=masks.device) + 0.5
-    a = masks.sum((-2, -1)).clamp(min=1e-9)
-    cx = (masks.sum(-2) * xs).sum(-1) / a
-    cy = (masks.sum(-1) * ys).sum(-1) / a
-    return [[round(float(x), 4), round(float(y), 4)] for x, y in zip(cx, cy)]
-
-
-# weight of outside_share in a photo fit: 1 changed the ClearGrasp mug fit from photo IoU 0.964 to 0.919
-# (its starting poses, partly outside the crop, ranked differently); 0.25 keeps it (0.966) and still holds
-# the tumbler inside its crop (photo IoU 0.17-0.42 without, 0.962 with)
-OUTSIDE_WEIGHT = 0.25
-
-
-def outside_share(verts: torch.Tensor, cams: list[Camera]) -> torch.Tensor:
-    """0-dim: how far the vertices ``(V, 3)`` project outside the images of ``cams``, in image heights,
-    averaged over vertices and views (0 when all are inside). The silhouette loss does not see what falls
-    outside a view; where that is known to be background (a photo's crop around its object) this charges
-    it, and its gradient pulls the geometry back."""
-    from ipm.render.camera import project
-
-    out = []
-    for c in cams:
-        xy, _ = project(verts, c.to(dtype=verts.dtype, device=verts.device))
-        x, y = xy[:, 0], xy[:, 1]
-        d = (torch.relu(-x) + torch.relu(x - c.width) + torch.relu(-y) + torch.relu(y - c.height)) / c.height
-        out.append(d.mean())
-    return torch.stack(out).mean()
-
-
-def rot_y(yaw_deg: torch.Tensor) -> torch.Tensor:
-    """Rotation ``(3, 3)`` about +y by ``yaw_deg`` degrees (0-dim tensor), differentiable."""
-    a = yaw_deg * (math.pi / 180.0)
-    c, s = torch.cos(a), torch.sin(a)
-    z, o = torch.zeros_like(c), torch.ones_like(c)
-    return torch.stack([torch.stack([c, z, s]), torch.stack([z, o, z]), torch.stack([-s, z, c])])
-
-
 class Problem:
     """A generator, a target and the layout of the search vector (see the module docstring)."""
 
     def __init__(self, gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, dtype=torch.float32):
         settings.check()
         self.gen, self.target, self.s = gen, target, settings
-        # the blur of the soft silhouettes relative to ``settings.sigma``; the polish lowers it, since
-        # with a wide blur the 0.5 level of a soft silhouette lies outside the hard one (thin parts
-        # such as handles come out too thin against hard masks)
-        self.sigma_factor = 1.0
-        # False while the outline is placed before the search (run_fit): part labels then count nothing
-        self.use_parts = True
         self.dtype = dtype
-        self.mask_loss = L.mask_loss(settings.loss, **dataclasses.asdict(settings.transport))
+        self.shape = shape_for(gen, settings, dtype)
         self.device = target.masks.device if isinstance(target, MaskTarget) else target.mesh.verts.device
         self.start = gen.values(settings.preset, settings.fix)
         cont = [p.name for p in gen.spec.continuous]
@@ -128,7 +87,7 @@ class Problem:
         if pre_check is not None and self.searched:
             pre_check(self.searched)
         self.d0 = self.clamp_discrete(self.d0)
-        if settings.subdivide is not None and gen.kind != "mesh":
+        if settings.subdivide is not None and not self.shape.has_faces:
             raise InputError(f"subdivision: applies to mesh generators; {gen.name} is an SDF generator")
         self.cam_fit = isinstance(target, MaskTarget) and settings.camera == "fit"
         self.layout = E.Layout(self.lo, self.hi, tuple(self.free), self.cam_fit)
@@ -166,24 +125,13 @@ class Problem:
         self._target_sphere: tuple | None = None
         self.c0, self.L0 = self.frame(self.d0)
         self.u_ref = self.encode_params(self.theta0)
-        if isinstance(target, MeshTarget):
-            gen_t = torch.Generator().manual_seed(settings.seed)
-            tv, tf = target.mesh.verts.to(dtype), target.mesh.faces
-            self.target_pts = L.SurfaceSampler.draw(tv, tf, target.samples, gen_t).points(tv)
-            self._samplers: dict = {}
-            if gen.kind == "sdf":
-                from ipm.metrics import inside
-
-                rng = np.random.default_rng(settings.seed)
-                vol = rng.uniform(-1.1, 1.1, size=(target.samples, 3))
-                V, F = tv.detach().double().numpy(), tf.numpy()
-                self.vol_pts = torch.as_tensor(vol, dtype=dtype)
-                self.vol_inside = torch.as_tensor(inside(vol, V, F))
+        self.terms = active_terms(self)
+        self.mask_loss = L.mask_loss(settings.loss, **dataclasses.asdict(settings.transport))
 
     def _check_cues(self, target: MaskTarget) -> None:
         """Cues need a mesh generator (depth, labels and normals come from its faces) whose parts include
         the named ones; the depth scale of each view is measured once."""
-        if self.gen.kind != "mesh":
+        if not self.shape.has_faces:
             raise InputError(f"{', '.join(target.cues)} targets: expected a mesh generator (ipm list generators), "
                              f"got the SDF generator {self.gen.name}; fit it to masks only")
         if target.parts is not None:
@@ -277,9 +225,7 @@ class Problem:
         c_t, r_t = self._target_sphere
         d = {**self.d0, **discrete}
         c0, L0 = self.frame(d)
-        th = self.carry(self.theta0, d)
-        v = (self.gen.mesh(th, d, self.s.lod).verts.detach().double() if self.gen.kind == "mesh" else
-             self.gen.to_mesh(self.gen.spec.from_vector(th, d), resolution=48).verts.double())
+        v = self.shape.vertices(self.carry(self.theta0, d), d)
         r0 = float(torch.linalg.vector_norm(v - c0, dim=1).max()) * 2.0 / L0
         return {"scale": r_t / max(r0, 1e-12), "t": tuple(float(x) for x in c_t)}
 
@@ -318,11 +264,7 @@ class Problem:
         d = {**self.d0, **discrete}
         key = tuple(sorted(d.items()))
         if key not in self._frames:
-            theta = self.carry(self.theta0, d)
-            if self.gen.kind == "mesh":
-                v = self.gen.mesh(theta, d, self.s.lod).verts.detach().double()
-            else:
-                v = self.gen.to_mesh(self.gen.spec.from_vector(theta, d), resolution=48).verts.double()
+            v = self.shape.vertices(self.carry(self.theta0, d), d)
             if len(v) == 0:
                 raise InputError(f"{self.gen.name}: expected a shape at the starting parameters, got an empty "
                                  f"one for {d}")
@@ -333,59 +275,21 @@ class Problem:
             self._frames[key] = (0.5 * (lo + hi), float((hi - lo).max()))
         return self._frames[key]
 
-    def _to_world(self, p: torch.Tensor, t, yaw, scale, discrete: Mapping[str, int]) -> torch.Tensor:
-        c0, L0 = self.frame(discrete)
-        R = rot_y(yaw).to(p.dtype)
-        return scale.to(p.dtype) * ((p - c0.to(p.dtype)) * (2.0 / L0)) @ R.T + t.to(p.dtype)
+    def posed(self, x: torch.Tensor, discrete: Mapping[str, int]) -> tuple[torch.Tensor, dict, Pose]:
+        """``(theta (N,), discrete values, pose)`` of ``x (m,)``: the generator's values (counts carried,
+        :meth:`carry`), the discrete values with the starting ones where absent, the canonical frame's pose."""
+        theta, t, yaw, scale, _ = self.decode(x)
+        d = {**self.d0, **discrete}
+        c0, size = self.frame(d)
+        return self.carry(theta, d), d, Pose(t, yaw, scale, c0, size)
 
     def mesh_world(self, x: torch.Tensor, discrete: dict, pose_grad: bool = True) -> TriMesh:
-        """The posed mesh (world frame of the target); differentiable in ``x`` for mesh generators (in its
+        """The posed mesh (world frame of the target); differentiable in ``x`` where the shape is (in its
         generator coordinates only, without ``pose_grad``)."""
         if not pose_grad:
             x = torch.cat([x[: self.n], x[self.n:].detach()])
-        theta, t, yaw, scale, _ = self.decode(x)
-        d = {**self.d0, **discrete}
-        theta = self.carry(theta, d)
-        if self.gen.kind == "mesh":
-            m = self.gen.mesh(theta.to(self.dtype), d, self.s.lod)
-            if self.s.subdivide is not None:
-                m = self._subdivided(m)
-        else:
-            values = self.gen.spec.from_vector(theta.detach().double(), d)
-            m = self.gen.to_mesh(values, resolution=self.s.resolution)
-        return TriMesh(self._to_world(m.verts.to(self.dtype), t, yaw, scale, d), m.faces, m.groups, m.group_names)
-
-    def _subdivided(self, m: TriMesh) -> TriMesh:
-        """``m`` subdivided as the settings say (``FitSettings.subdivide``); every face's four children
-        keep its group (libigl numbers them four by four)."""
-        from ipm.subdiv import SCHEMES
-
-        levels = self.s.subdivide_levels
-        v, f = SCHEMES.get(self.s.subdivide).subdivide(m.verts, m.faces.cpu().numpy(), levels)
-        groups = None if m.groups is None else m.groups.repeat_interleave(4 ** levels)
-        return TriMesh(v, torch.as_tensor(f, device=m.faces.device), groups, m.group_names)
-
-    def sdf_world(self, x: torch.Tensor, discrete: dict):
-        """(f(points) -> distances in the world frame, lo (3,), hi (3,)) for SDF generators."""
-        theta, t, yaw, scale, _ = self.decode(x)
-        d = {**self.d0, **discrete}
-        theta = self.carry(theta, d)
-        tree = self.gen.tree_for(d)
-        th = theta.to(self.dtype)
-        c0, L0 = self.frame(d)
-        k = L0 / 2.0
-        R = rot_y(yaw).to(self.dtype)
-        sc = scale.to(self.dtype)
-
-        def f(p):
-            local = ((p - t.to(p.dtype)) @ R.to(p.dtype)) / (sc.to(p.dtype) / k) + c0.to(p.dtype)
-            return tree.sdf(th.to(p.dtype), local) * (sc.to(p.dtype) / k)
-
-        lo, hi = tree.with_theta(theta.detach().double()).bounds()
-        r = float(np.linalg.norm(np.maximum(np.abs(lo - c0.numpy()), np.abs(hi - c0.numpy())))) / k
-        r *= float(scale.detach())
-        c = t.detach().double().numpy()
-        return f, c - r, c + r
+        theta, d, pose = self.posed(x, discrete)
+        return self.shape.world_mesh(theta, d, pose)
 
     def camera_triple(self, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor] | None:
         """The fitted camera's (elevation, distance, FOV) as rendered (None without a camera fit): the
@@ -413,148 +317,28 @@ class Problem:
                              height=c0.height, cx=c0.cx, cy=c0.cy)]
 
     # -- the objective ---------------------------------------------------------------------------
-    def render_soft(self, x: torch.Tensor, discrete: dict, mesh: TriMesh | None = None) -> torch.Tensor:
-        """Soft silhouettes ``(K, H, W)`` of the posed shape in every view (``mesh``: the posed mesh of a mesh
-        generator, if already made)."""
-        cams = self.cameras(x)
-        k = self.sigma_factor
-        if self.gen.kind == "mesh":
-            from ipm.render.soft import soft_silhouette
+    def render_soft(self, x: torch.Tensor, discrete: dict, mesh: TriMesh | None = None,
+                    phase: Phase = SEARCH) -> torch.Tensor:
+        """Soft silhouettes ``(K, H, W)`` of the posed shape in every view at ``phase``'s blur (``mesh``: the
+        posed mesh, if already made)."""
+        theta, d, pose = self.posed(x, discrete)
+        return self.shape.silhouettes(theta, d, pose, self.cameras(x), phase.sigma, mesh)
 
-            m = self.mesh_world(x, discrete) if mesh is None else mesh
-            sig = (self.s.sigma or 1.0) * k  # 1 px^2: the renderer's default
-            return torch.stack([soft_silhouette(m.verts, m.faces, c.to(self.dtype), sigma=sig) for c in cams])
-        from ipm.render.sdf_silhouette import default_sigma, sdf_silhouette
-
-        f, lo, hi = self.sdf_world(x, discrete)
-        return torch.stack([sdf_silhouette(f, c.to(self.dtype), lo, hi,
-                                           sigma=(self.s.sigma or default_sigma(c, lo, hi)) * k) for c in cams])
-
-    def objective(self, x: torch.Tensor, discrete: dict, need_grad: bool):
+    def objective(self, x: torch.Tensor, discrete: dict, need_grad: bool, phase: Phase = SEARCH):
+        """``(loss (0-dim), gradient (m,) or None, extras)`` at ``x (m,)``: the sum of :attr:`terms` in their
+        order, less those ``phase`` leaves out, at ``phase``'s blur; the gradient is zero on the pose (and
+        camera) coordinates that are not searched."""
         x = x.detach().clone().requires_grad_(need_grad)
         with torch.set_grad_enabled(need_grad):
-            extras: dict = {}
-            if isinstance(self.target, MaskTarget):
-                mesh = self.mesh_world(x, discrete) if self.gen.kind == "mesh" else None
-                pred = self.render_soft(x, discrete, mesh)
-                tgt = self.target.masks.to(pred.dtype)
-                loss = self.mask_loss(pred, tgt)
-                if self.target.outside_is_background and mesh is not None:
-                    loss = loss + OUTSIDE_WEIGHT * outside_share(mesh.verts, self.cameras(x))
-                if self.target.cues:
-                    # part labels do not move the pose (or camera): a periodic pattern (rows of windows)
-                    # pulls a shape whose outline is not yet in place towards the nearest period,
-                    # wherever that is; the outline places it (on panel5 from one view, Adam with
-                    # labels moving the pose lost the start's silhouette IoU 0.82 -> 0.51 in 3 steps)
-                    still = (self.mesh_world(x, discrete, pose_grad=False)
-                             if self.target.parts is not None and self.use_parts and need_grad else mesh)
-                    loss = loss + self._cue_loss(mesh, self.cameras(x), extras, still)
-                with torch.no_grad():
-                    hard = pred > 0.5
-                    t = tgt > 0.5
-                    inter = (hard & t).sum((-2, -1)).double()
-                    union = (hard | t).sum((-2, -1)).double().clamp(min=1)
-                    extras["iou"] = [round(float(v), 5) for v in inter / union]
-                    extras["iou_px"] = [[int(a), int(b)] for a, b in zip(inter, union)]
-                    extras["area"] = [float(v) for v in pred.sum((-2, -1))]
-                    extras["centroid"] = centroids(pred)
-                    extras["soft_iou"] = round(float(L.soft_iou_loss(pred, tgt).neg().add(1)), 5)
-            else:
-                loss = self._mesh_loss(x, discrete)
-            if self.s.prior_weight > 0:
-                loss = loss + self.s.prior_weight * L.prior_loss(x[: self.n], self.u_ref.to(x.dtype))
-            if self.anchored:
-                a = self.anchored
-                loss = loss + self.s.anchor * (x[a] - self.u_ref[a].to(x)).abs().sum()
-            loss = loss + self.part_cost(discrete)
+            ev = Evaluation(self, x, discrete, phase, need_grad)
+            loss = None
+            for term in self.terms:
+                if term.name in phase.without:
+                    continue
+                value = term(ev)
+                loss = value if loss is None else loss + value
             grad = None
             if need_grad:
                 (g,) = torch.autograd.grad(loss, x, allow_unused=True)
                 grad = torch.zeros_like(x) if g is None else g * self.pose_mask
-        return loss.detach(), grad, extras
-
-    def _cue_loss(self, mesh: TriMesh, cams: list[Camera], extras: dict, parts_mesh: TriMesh) -> torch.Tensor:
-        """The weighted cue losses (:mod:`ipm.losses.cues`), each averaged over the views, from one deferred
-        render per view (part labels from ``parts_mesh``, the same mesh with the pose held, in cameras
-        held); fills ``extras`` with what the tie rule compares: ``depth_px`` (object pixels whose depth
-        agrees with the target, per view), ``parts_px`` (per view, per named part, hard intersection and
-        union pixels) and the solved ``light`` per view."""
-        from ipm.render import deferred as R
-        from ipm.render.camera import detach_camera
-
-        t, s = self.target, self.s
-        K = len(cams)
-        v, f = mesh.verts, mesh.faces
-        total = v.sum() * 0.0
-        parts = t.parts is not None and self.use_parts
-        if parts:
-            # the mesh's group of each named part (-2: the mesh has no such part now, e.g. no handle)
-            index = [mesh.group_names.index(n) if n in mesh.group_names else -2 for n in t.part_names]
-            extras["parts_px"] = []
-        if t.depth is not None:
-            extras["depth_px"] = []
-        if t.image is not None:
-            extras["light"] = []
-        for i, cam in enumerate(cams):
-            cam = cam.to(v.dtype)
-            rast = R.rasterize(v, f, cam)
-            obj = t.masks[i] > 0.5
-            if t.depth is not None:
-                d = R.depth(v, f, cam, rast)
-                tgt = t.depth[i].to(d.dtype)
-                total = total + s.depth_weight / K * C.depth_loss(d, rast.mask, tgt, obj, self.depth_scales[i])
-                with torch.no_grad():
-                    extras["depth_px"].append(C.depth_agreement(d, rast.mask, tgt, obj, self.depth_scales[i]))
-            if parts:
-                soft = self._soft_parts(parts_mesh, rast, detach_camera(cam), index)  # (P, H, W)
-                want = torch.stack([t.parts[i] == k for k in range(len(index))]).to(v.dtype)
-                total = total + s.parts_weight / K * C.parts_loss(soft, want)
-                with torch.no_grad():
-                    labels = R.part_labels(mesh.groups, rast)
-                    hard, w = torch.stack([labels == j for j in index]), want > 0.5
-                    extras["parts_px"].append([[int((a & b).sum()), int((a | b).sum())] for a, b in zip(hard, w)])
-            if t.image is not None:
-                normal = R.vertex_normal_image(v, f, rast)
-                loss, light = C.shading_loss(normal, t.image[i].to(v.dtype), rast.mask & obj)
-                total = total + s.image_weight / K * loss
-                extras["light"].append(light)
-        return total
-
-    def _soft_parts(self, mesh: TriMesh, rast, cam: Camera, index: list[int]) -> torch.Tensor:
-        """Soft masks ``(P, H, W)`` of the parts ``index`` (mesh groups; -2: absent): the soft silhouette
-        of each part's faces that are visible in the exact raster ``rast``, at the fit's blur.
-
-        Not the antialiased part labels: a building's windows are a few pixels of many small faces
-        (frames, reveals), where antialiasing's pixel-pair gradient is dominated by which pairs exist
-        (measured on panel5 at 192 px: directional derivatives off the finite differences by 5x and in
-        sign), while these match float64 finite differences to 1 %. A face half hidden by another
-        counts whole. The blur is :data:`PARTS_SIGMA` throughout: target labels are hard, and the 0.5
-        level of a wider blur lies outside a small part's outline (panel5 at 160 px, windows of 3 px: at
-        1 px^2 the true counts scored 0.34, no better than 6 floors' 0.32)."""
-        from ipm.render.soft import soft_silhouette
-
-        v, f = mesh.verts, mesh.faces
-        visible = torch.zeros(f.shape[0], dtype=torch.bool, device=f.device)
-        visible[rast.face[rast.mask]] = True
-        sig = PARTS_SIGMA
-        out = []
-        for j in index:
-            sel = visible & (mesh.groups == j) if mesh.groups is not None and j >= 0 else visible & False
-            if not bool(sel.any()):
-                out.append(torch.zeros(rast.shape, dtype=v.dtype, device=v.device) + v.sum() * 0.0)
-            else:
-                out.append(soft_silhouette(v, f[sel], cam, sigma=sig))
-        return torch.stack(out)
-
-    def _mesh_loss(self, x: torch.Tensor, discrete: dict) -> torch.Tensor:
-        if self.gen.kind == "mesh":
-            m = self.mesh_world(x, discrete)
-            key = (tuple(sorted(discrete.items())), m.n_faces)
-            if key not in self._samplers:
-                gen_t = torch.Generator().manual_seed(self.s.seed + 1)
-                self._samplers[key] = L.SurfaceSampler.draw(m.verts, m.faces, self.target.samples, gen_t)
-            pts = self._samplers[key].points(m.verts)
-            return L.chamfer_loss(pts, self.target_pts.to(pts.dtype))
-        f, _, _ = self.sdf_world(x, discrete)
-        return (L.sdf_surface_loss(f(self.target_pts)) +
-                0.1 * L.occupancy_loss(f(self.vol_pts), self.vol_inside))
+        return loss.detach(), grad, ev.extras

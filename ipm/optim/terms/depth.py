@@ -1,0 +1,37 @@
+"""``depth``: the rendered depth against the target's depth maps (:func:`ipm.losses.cues.depth_loss`, in units
+of each view's depth scale), ``FitSettings.depth_weight`` averaged over the views; records the object pixels
+whose depth agrees (``depth_px``, what the tie rule compares)."""
+
+from __future__ import annotations
+
+import torch
+
+from ipm.losses import cues as C
+from ipm.optim.targets import MaskTarget
+from ipm.optim.terms import TERMS, Evaluation
+
+
+@TERMS.register()
+class Depth:
+    name = "depth"
+    order = 30
+
+    def applies(self, prob) -> bool:
+        return isinstance(prob.target, MaskTarget) and prob.target.depth is not None
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        from ipm.render import deferred as R
+
+        t, v, f = ev.prob.target, ev.mesh.verts, ev.mesh.faces
+        K = len(ev.cameras)
+        total = v.sum() * 0.0
+        ev.extras["depth_px"] = []
+        for i in range(K):
+            rast = ev.raster(i)
+            obj = t.masks[i] > 0.5
+            d = R.depth(v, f, ev.view_camera(i), rast)
+            tgt = t.depth[i].to(d.dtype)
+            total = total + ev.prob.s.depth_weight / K * C.depth_loss(d, rast.mask, tgt, obj, ev.prob.depth_scales[i])
+            with torch.no_grad():
+                ev.extras["depth_px"].append(C.depth_agreement(d, rast.mask, tgt, obj, ev.prob.depth_scales[i]))
+        return total

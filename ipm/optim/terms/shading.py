@@ -1,0 +1,35 @@
+"""``shading``: the rendered normals shaded by the light that best explains the grey photo on the object's
+pixels, solved in closed form per view (:func:`ipm.losses.cues.shading_loss`), ``FitSettings.image_weight``
+averaged over the views; records the light (``light``)."""
+
+from __future__ import annotations
+
+import torch
+
+from ipm.losses import cues as C
+from ipm.optim.targets import MaskTarget
+from ipm.optim.terms import TERMS, Evaluation
+
+
+@TERMS.register()
+class Shading:
+    name = "shading"
+    order = 32
+
+    def applies(self, prob) -> bool:
+        return isinstance(prob.target, MaskTarget) and prob.target.image is not None
+
+    def __call__(self, ev: Evaluation) -> torch.Tensor:
+        from ipm.render import deferred as R
+
+        t, v, f = ev.prob.target, ev.mesh.verts, ev.mesh.faces
+        K = len(ev.cameras)
+        total = v.sum() * 0.0
+        ev.extras["light"] = []
+        for i in range(K):
+            rast = ev.raster(i)
+            normal = R.vertex_normal_image(v, f, rast)
+            loss, light = C.shading_loss(normal, t.image[i].to(v.dtype), rast.mask & (t.masks[i] > 0.5))
+            total = total + ev.prob.s.image_weight / K * loss
+            ev.extras["light"].append(light)
+        return total
