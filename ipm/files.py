@@ -1,7 +1,11 @@
 """The user's files, read and written with one kind of failure: an :class:`~ipm.errors.InputError` line
 naming the file.
 
-Reading: every way a file can be unreadable (missing, a folder, not UTF-8 text, not JSON) gives one line.
+Reading: every way a file can be unreadable (missing, a folder, not UTF-8 text, not JSON) gives one line,
+and so does hostile content: text files larger than :data:`MAX_TEXT_BYTES` are refused before they are
+read whole, JSON nested deeper than its caller's limit before the parser recurses into it, and JSON
+numbers beyond the range of a double (``1e400``, which Python's parser reads as infinity, or an integer of
+hundreds of digits) when they are parsed.
 
 Writing is atomic: a temporary file beside the target, then a rename into place, so no reader ever sees a
 half-written file. Files get the permissions an ordinary ``open(path, "w")`` would give (0666 less the
@@ -13,6 +17,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import re
 import tempfile
@@ -21,16 +26,28 @@ from pathlib import Path
 
 from ipm.errors import InputError
 
+# the largest text file read (JSON, YAML, TOML): the project's own files are a few megabytes at most; a
+# device or a runaway file is refused before it fills the memory
+MAX_TEXT_BYTES = 256 * 2**20
+# the most digits a JSON integer may have: more lie beyond the range of a double (about 1.8e308)
+MAX_INT_DIGITS = 308
+
 
 def read_text(path: str | Path, what: str = "file") -> str:
-    """The UTF-8 text of ``path``; ``what`` names the file's role in messages ("parameter file")."""
+    """The UTF-8 text of ``path``; ``what`` names the file's role in messages ("parameter file"). Files
+    larger than :data:`MAX_TEXT_BYTES` are refused (only that much is read)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{what} not found: {path}")
     if path.is_dir():
         raise InputError(f"{what} {path} is a folder; expected a file")
+    with open(path, "rb") as f:
+        data = f.read(MAX_TEXT_BYTES + 1)
+    if len(data) > MAX_TEXT_BYTES:
+        raise InputError(f"{what} {path}: expected a text file of at most {MAX_TEXT_BYTES // 2**20} MB (the limit), "
+                         "got a larger one")
     try:
-        return path.read_bytes().decode("utf-8")
+        return data.decode("utf-8")
     except UnicodeDecodeError:
         raise InputError(f"{what} {path}: expected UTF-8 text, got binary data") from None
 
@@ -38,16 +55,43 @@ def read_text(path: str | Path, what: str = "file") -> str:
 def read_json(path: str | Path, what: str = "JSON file", *, max_nesting: int = 200, too_deep: str = ""):
     """The parsed JSON of ``path`` (any JSON value); errors name the file, line and column. Text whose
     objects and arrays nest deeper than ``max_nesting`` is refused before the parser recurses into it
-    (``too_deep`` says what the limit means to the caller)."""
+    (``too_deep`` says what the limit means to the caller); so are numbers beyond the range of a double
+    (``1e400``, an integer of more than :data:`MAX_INT_DIGITS` digits), naming the key they are given
+    for."""
     text = read_text(path, what)
     nesting = json_nesting(text)
     if nesting > max_nesting:
         raise InputError(f"{what} {path}: {too_deep or f'expected JSON nested at most {max_nesting} deep'}, "
                          f"got JSON nested {nesting} deep")
+
+    def too_large(literal: str) -> InputError:
+        shown = literal if len(literal) <= 24 else f"{literal[:12]}...({len(literal)} characters)"
+        key = _key_of(text, literal)
+        return InputError(f"{what} {path}: {f'key {key!r}: ' if key else ''}expected a number of "
+                          f"magnitude at most 1.8e308 (a double), got {shown}")
+
+    def parse_float(literal: str) -> float:
+        value = float(literal)
+        if math.isinf(value):
+            raise too_large(literal)
+        return value
+
+    def parse_int(literal: str) -> int:
+        if len(literal.lstrip("-")) > MAX_INT_DIGITS:
+            raise too_large(literal)
+        return int(literal)
+
     try:
-        return json.loads(text)
+        return json.loads(text, parse_float=parse_float, parse_int=parse_int)
     except json.JSONDecodeError as e:
         raise InputError(f"{what} {path} is not valid JSON: {e.msg} at line {e.lineno}, column {e.colno}") from None
+
+
+def _key_of(text: str, literal: str) -> str | None:
+    """The object key that the number ``literal`` is the value of in JSON ``text`` (its first occurrence
+    as a value), or None (a number in a list)."""
+    m = re.search(r'"((?:\\.|[^"\\])*)"\s*:\s*' + re.escape(literal) + r"(?![0-9.eE+-])", text)
+    return m.group(1) if m else None
 
 
 def read_npy(path: str | Path, what: str = "array file"):

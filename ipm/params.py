@@ -24,6 +24,10 @@ from ipm.errors import InputError
 Kind = Literal["float", "int", "bool"]
 Value = float | int
 
+# the largest random seed ipm takes (``--seed``, experiment files): every generator seeded with it takes it:
+# numpy's legacy seed (below 2**32), torch and nlopt (64 bits) and OpenCV's (a C int: ipm mask's GrabCut)
+MAX_SEED = 2**31 - 1
+
 
 @dataclass(frozen=True)
 class Param:
@@ -68,14 +72,25 @@ class Param:
         return self.kind == "float"
 
     def check(self, value: object) -> Value:
-        """Validate one value and return it in the parameter's type; raise ``ValueError`` otherwise."""
-        if isinstance(value, bool):
+        """Validate one value and return it in the parameter's type; raise ``ValueError`` otherwise.
+
+        A ``bool`` parameter takes ``true``/``false`` or 0/1; the others take numbers only (``true`` is
+        not 1.0). Non-finite values and numbers beyond the range of a double are refused."""
+        if isinstance(value, (bool, np.bool_)):
+            if self.kind != "bool":
+                raise InputError(f"parameter {self.name!r} is {self.kind}: expected a number, got "
+                                 f"{str(bool(value)).lower()}")
             value = int(value)
         if not isinstance(value, (int, float, np.integer, np.floating)):
             raise InputError(f"parameter {self.name!r}: expected a number, got {value!r}")
-        value = float(value) if self.kind == "float" else value
-        if isinstance(value, float) and not math.isfinite(value):
-            raise InputError(f"parameter {self.name!r}: expected a finite number, got {value}")
+        try:
+            as_float = float(value)
+        except OverflowError:  # an integer beyond the range of a double
+            raise InputError(f"parameter {self.name!r}: expected a value in [{self.lo}, {self.hi}], got an "
+                             f"integer of {len(str(abs(int(value))))} digits") from None
+        value = as_float if self.kind == "float" else value
+        if not math.isfinite(as_float):
+            raise InputError(f"parameter {self.name!r}: expected a finite number, got {as_float}")
         if self.kind != "float":
             if float(value) != round(float(value)):
                 raise InputError(
@@ -240,6 +255,9 @@ def parse_assignment(text: str) -> tuple[str, float]:
         value = float(raw)
     except ValueError:
         raise InputError(f"expected a number after '=' in {text!r}") from None
+    if math.isinf(value) and "inf" not in raw.lower():  # 1e400: beyond a double, read as infinity
+        raise InputError(f"parameter {name.strip()!r}: expected a number of magnitude at most 1.8e308 (a double), "
+                         f"got {raw.strip()}")
     return name.strip(), value
 
 

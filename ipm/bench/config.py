@@ -51,6 +51,7 @@
 from __future__ import annotations
 
 import itertools
+import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -60,9 +61,50 @@ import msgspec
 from msgspec import Meta
 
 from ipm.errors import InputError
+from ipm.params import MAX_SEED
 
 MAX_SIZE = 2048   # pixels a side of input and held-out masks
 MAX_VIEWS = 64
+# how deeply an experiment's tables and arrays may nest (its own nest 4 deep): deeper text is refused
+# before tomllib, which recurses into every inline table and array, parses it
+MAX_NESTING = 32
+# TOML's strings (basic and literal, one line or several) and comments, where brackets do not nest
+_TOML_SKIPPED = re.compile(r'"""(?:\\.|[^\\])*?"""|\'\'\'.*?\'\'\'|"(?:\\.|[^"\\\n])*"|\'[^\'\n]*\'|#[^\n]*',
+                           re.S)
+
+
+# a dotted key (a.b.c) or a number with a decimal point, once strings are blanked
+_DOTTED = re.compile(r'[\w"-]+(?:[ \t]*\.[ \t]*[\w"-]+)+')
+
+
+def toml_nesting(text: str) -> int:
+    """An upper bound of how deeply tables and arrays nest in TOML ``text``, without parsing it: the
+    deepest nesting of arrays and inline tables (strings and comments skipped; a table header ``[[a]]``
+    counts 2 on its line) plus the most dots in a dotted key (``a.b.c = 1`` nests 3 deep; a number's
+    decimal point counts one too, which the limit leaves room for). tomllib takes time quadratic in a
+    dotted key's length, and recurses into arrays and inline tables."""
+    text = _TOML_SKIPPED.sub('""', text)
+    depth = deepest = 0
+    for c in text:
+        if c in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in "]}":
+            depth -= 1
+    return deepest + max((m.group().count(".") for m in _DOTTED.finditer(text)), default=0)
+
+
+def _data_depth(data: object) -> int:
+    """How deeply the tables and arrays of parsed TOML nest (dotted keys ``a.b.c = 1`` nest without
+    brackets), without recursion."""
+    deepest, stack = 0, [(data, 1)]
+    while stack:
+        d, depth = stack.pop()
+        kids = d.values() if isinstance(d, dict) else d if isinstance(d, list) else None
+        if kids is not None:
+            deepest = max(deepest, depth)
+            stack.extend((k, depth + 1) for k in kids)
+    return deepest
 
 
 @dataclass(frozen=True)
@@ -154,7 +196,7 @@ class Experiment:
 
 
 # The file's schema (msgspec validates types, ranges and unknown keys; messages give the key's path)
-Seed = Annotated[int, Meta(ge=0)]
+Seed = Annotated[int, Meta(ge=0, le=MAX_SEED)]
 Views = Annotated[list[Annotated[int, Meta(ge=1, le=MAX_VIEWS)]], Meta(min_length=1)]
 
 
@@ -235,8 +277,9 @@ def _check_cues(cues, target: TargetSpec) -> None:
 def load_experiment(path: str | Path) -> Experiment:
     """Parse and check an experiment file; :class:`~ipm.errors.InputError` names the file and the problem.
 
-    Everything a run needs is checked here, without running: keys (unknown ones are refused), types and
-    ranges, names, every method's settings for every target it applies to
+    Everything a run needs is checked here, without running: the nesting (at most :data:`MAX_NESTING`
+    deep, checked on the text before it is parsed), keys (unknown ones are refused), types and ranges
+    (seeds from 0 to :data:`ipm.params.MAX_SEED`), names, every method's settings for every target it applies to
     (:func:`ipm.bench.methods.check_settings`: unknown generators, presets and settings keys), and that
     the cues a method asks for can be drawn from those targets (:func:`_check_cues`)."""
     from ipm.bench.methods import check_settings, requested_cues
@@ -244,12 +287,22 @@ def load_experiment(path: str | Path) -> Experiment:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"experiment file not found: {path}")
+    from ipm.files import read_text
+
     try:
-        data = tomllib.loads(path.read_bytes().decode("utf-8"))
-    except UnicodeDecodeError:
-        raise InputError(f"experiment file {path}: expected UTF-8 TOML text, got binary data") from None
-    except tomllib.TOMLDecodeError as e:
-        raise InputError(f"experiment file {path} is not valid TOML: {e}") from None
+        text = read_text(path, "experiment file")
+    except InputError as e:
+        raise InputError(str(e).replace("UTF-8 text", "UTF-8 TOML text")) from None
+    depth = toml_nesting(text)
+    if depth <= MAX_NESTING:
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as e:
+            raise InputError(f"experiment file {path} is not valid TOML: {e}") from None
+        depth = _data_depth(data)
+    if depth > MAX_NESTING:
+        raise InputError(f"experiment file {path}: expected tables and arrays nested at most {MAX_NESTING} deep "
+                         f"(the limit), got {depth} deep")
     f = _convert(data, _File, str(path))
     # paths in the file are relative to the project root: the experiments folder's parent
     root = path.resolve().parent.parent

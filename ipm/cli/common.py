@@ -100,7 +100,17 @@ PresetOpt = Annotated[str | None, typer.Option("--preset", help="start from a na
 ParamsOpt = Annotated[Path | None, typer.Option("--params", help="parameter file (JSON: {generator, params})")]
 SetOpt = Annotated[list[str] | None, typer.Option("--set", help="NAME=VALUE, repeatable")]
 RandomOpt = Annotated[bool, typer.Option("--random", help="sample parameters uniformly within their bounds")]
-SeedOpt = Annotated[int, typer.Option("--seed", min=0, help="random seed (0 or more)")]
+def _seed(value: int) -> int:
+    """``--seed`` at most :data:`ipm.params.MAX_SEED` (the most every seeded generator takes; ``min=0``
+    refuses negative seeds first)."""
+    from ipm.params import MAX_SEED
+
+    if value > MAX_SEED:
+        raise typer.BadParameter(f"expected a seed from 0 to {MAX_SEED}, got {value}")
+    return value
+
+
+SeedOpt = Annotated[int, typer.Option("--seed", min=0, callback=_seed, help="random seed, 0 to 2147483647")]
 LibraryOpt = Annotated[list[Path] | None, typer.Option("--library", help="folder of macro node JSON files")]
 DeviceOpt = Annotated[str, typer.Option("--device", help="auto, cpu or cuda")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="print JSON on stdout")]

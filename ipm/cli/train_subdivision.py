@@ -63,9 +63,19 @@ def register(app: typer.Typer) -> None:
                        TextColumn("loss {task.fields[loss]:.4g}"), TimeElapsedColumn(), transient=True,
                        console=Console(stderr=True))
         task = bar.add_task("train", total=steps, loss=float("nan"))
-        with bar:
-            net = train(s, checkpoint=ckpt, every=checkpoint_every, resume=resume,
-                        progress=lambda i, loss: bar.update(task, completed=i, loss=loss))
+        shown = []
+
+        def progress(i: int, loss: float) -> None:
+            if not shown:  # shown from the first step: bad input (a mesh, a checkpoint) is refused before,
+                bar.start()  # on one line, without the bar's own line around it
+                shown.append(True)
+            bar.update(task, completed=i, loss=loss)
+
+        try:
+            net = train(s, checkpoint=ckpt, every=checkpoint_every, resume=resume, progress=progress)
+        finally:
+            if shown:
+                bar.stop()
         save_weights(net, output)
         ckpt.unlink(missing_ok=True)
         scores = evaluate(net, make_pairs(HELD_OUT, levels, seed + 1000))

@@ -57,16 +57,11 @@ def _save_png(path: Path, arr: np.ndarray) -> Path:
 
 
 def _open_png(path: Path, what: str) -> np.ndarray:
-    from PIL import Image, UnidentifiedImageError
+    from ipm.io.masks import decode_image  # refuses decompression bombs too
 
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
-    try:
-        with Image.open(path) as im:
-            im.load()
-            return np.asarray(im)
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-        raise InputError(f"{what} {path}: expected a PNG image, got an unreadable file ({type(e).__name__})") from None
+    return decode_image(path, what, "a PNG image", np.asarray)
 
 
 # -- depth ---------------------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ makes a whole folder of outputs appear at once or not at all.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,23 +43,41 @@ class MaskSet:
         return len(self.cameras)
 
 
+def decode_image(path: Path, what: str, expected: str, convert: Callable) -> np.ndarray:
+    """``convert(image)`` of the image file at ``path``, read by Pillow; one-line :class:`InputError`
+    naming it as ``what`` for a file that is not an image (``expected`` says what is) and for an image of
+    more than ``PIL.Image.MAX_IMAGE_PIXELS`` pixels (Pillow's decompression-bomb limit, about 89
+    megapixels): refused from its header, before it is decoded."""
+    import warnings
+
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with warnings.catch_warnings():
+            # Pillow warns from the limit and raises from twice the limit: both refused here
+            warnings.simplefilter("error", Image.DecompressionBombWarning)
+            with Image.open(path) as im:
+                im.load()
+                return convert(im)
+    except (Image.DecompressionBombError, Image.DecompressionBombWarning) as e:
+        size = re.search(r"\((\d+) pixels\)", str(e))
+        raise InputError(f"{what} {path}: expected an image of at most {Image.MAX_IMAGE_PIXELS:,} pixels (the "
+                         f"limit), got {f'{int(size.group(1)):,} pixels' if size else 'a larger one'}") from None
+    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
+        raise InputError(f"{what} {path}: expected {expected}, got an unreadable file ({type(e).__name__})") from None
+
+
 def read_mask(path: str | Path, soft: bool = False) -> np.ndarray:
     """A mask PNG as (H, W) bool (foreground: value > 127; color images are converted to luminance,
     images with alpha use the alpha channel), or with ``soft`` as (H, W) float32 ``value / 255`` (soft
-    masks: 0..255 is the foreground's share of the pixel). ``InputError`` if the file is not an image."""
-    from PIL import Image, UnidentifiedImageError
+    masks: 0..255 is the foreground's share of the pixel). ``InputError`` if the file is not an image or
+    has more pixels than Pillow's decompression-bomb limit (:func:`read_image`)."""
+    def grey(im) -> np.ndarray:
+        if im.mode in ("RGBA", "LA") or (im.mode == "P" and "transparency" in im.info):
+            return np.asarray(im.convert("RGBA"))[..., 3]
+        return np.asarray(im.convert("L"))
 
-    path = Path(path)
-    try:
-        with Image.open(path) as im:
-            im.load()
-            if im.mode in ("RGBA", "LA") or (im.mode == "P" and "transparency" in im.info):
-                arr = np.asarray(im.convert("RGBA"))[..., 3]
-            else:
-                arr = np.asarray(im.convert("L"))
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-        raise InputError(f"mask {path}: expected a PNG image, got an unreadable file "
-                         f"({type(e).__name__})") from None
+    arr = decode_image(Path(path), "mask", "a PNG image", grey)
     if soft:
         return arr.astype(np.float32) / 255.0
     return arr > 127
@@ -67,19 +85,14 @@ def read_mask(path: str | Path, soft: bool = False) -> np.ndarray:
 
 def read_image(path: str | Path, what: str, mode: str) -> np.ndarray:
     """The image at ``path`` converted to Pillow ``mode`` ("RGB", "RGBA", "L") as a uint8 array; one-line
-    :class:`InputError` naming it as ``what`` if it is missing or not an image."""
-    from PIL import Image, UnidentifiedImageError
-
+    :class:`InputError` naming it as ``what`` if it is missing, not an image, or larger than Pillow's
+    decompression-bomb limit (``PIL.Image.MAX_IMAGE_PIXELS``, about 89 megapixels: refused from the
+    file's header, before anything is decoded). Photos (``ipm mask``, ``ipm fit --image``) and drawings
+    (``ipm vectorize``) are read here."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
-    try:
-        with Image.open(path) as im:
-            im.load()
-            return np.asarray(im.convert(mode))
-    except (UnidentifiedImageError, OSError, SyntaxError, ValueError) as e:
-        raise InputError(f"{what} {path}: expected an image file (PNG, JPEG), got an unreadable file "
-                         f"({type(e).__name__})") from None
+    return decode_image(path, what, "an image file (PNG, JPEG)", lambda im: np.asarray(im.convert(mode)))
 
 
 def read_photo(path: str | Path) -> np.ndarray:

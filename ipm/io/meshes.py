@@ -67,13 +67,24 @@ def surface_area(mesh: TriMesh) -> float:
                  .sum() / 2) if mesh.n_faces else 0.0
 
 
+def unreadable(path: Path, e: Exception) -> str:
+    """The message for a mesh file trimesh cannot read: the file, the formats read, and trimesh's reason
+    where it is about the file (not where trimesh reached for a module it lacks: an ASCII STL of
+    garbage sends it looking for ``charset_normalizer`` to guess the text's encoding)."""
+    why = str(e).splitlines()[0].strip() if str(e).strip() else ""
+    about_file = why and not isinstance(e, (ImportError, AttributeError, TypeError, RecursionError)) \
+        and len(why) <= 200
+    return (f"mesh file {path}: expected a readable mesh ({', '.join(MESH_SUFFIXES)}), got a file that is not "
+            f"a valid {path.suffix.lower() or 'mesh'} file" + (f" ({type(e).__name__}: {why})" if about_file else ""))
+
+
 def load_mesh(path: str | Path, *, up: str = "y", normalize: bool = True,
               dtype: torch.dtype = torch.float64) -> TriMesh:
     """Read a mesh file (.ply, .obj, .stl, .glb, .gltf, .off) as a Y-up :class:`~ipm.types.TriMesh`.
 
     up: the file's up axis ("y" or "z"); normalize: to the protocol's unit bounding sphere
-    (:func:`normalize_mesh`). Raises ``ValueError`` ("expected ..., got ...") for a missing or unreadable file, an
-    unknown format, or a mesh without triangles or area.
+    (:func:`normalize_mesh`). Raises ``ValueError`` ("expected ..., got ...") for a missing or unreadable file
+    (:func:`unreadable`: the formats read), an unknown format, or a mesh without triangles or area.
     """
     import trimesh
 
@@ -88,9 +99,10 @@ def load_mesh(path: str | Path, *, up: str = "y", normalize: bool = True,
     kwargs = {"skip_materials": True} if path.suffix.lower() in (".obj", ".ply") else {}
     try:
         tm = trimesh.load_mesh(str(path), process=False, **kwargs)
+    except MemoryError:
+        raise
     except Exception as e:  # trimesh raises many kinds of errors for broken files
-        raise InputError(f"mesh file {path}: expected a readable {path.suffix} mesh, got an error: "
-                         f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}") from None
+        raise InputError(unreadable(path, e)) from None
     faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
     verts = np.asarray(getattr(tm, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     if len(faces) == 0:

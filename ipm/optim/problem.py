@@ -83,7 +83,12 @@ class Problem:
             self.searched = []
         from ipm.optim.strategies import STRATEGIES
 
-        pre_check = getattr(STRATEGIES[settings.discrete], "check", None)  # a strategy's own limits
+        strategy = STRATEGIES[settings.discrete]
+        if getattr(strategy, "ranged_only", False) and settings.ranges:
+            # a strategy that searches only the parameters given ranges (enumerate, when some are; it says
+            # so when it runs): the others are held at the start's values, as if fixed
+            self.searched = [p for p in self.searched if p.name in settings.ranges]
+        pre_check = getattr(strategy, "check", None)  # a strategy's own limits
         if pre_check is not None and self.searched:
             pre_check(self.searched)
         self.d0 = self.clamp_discrete(self.d0)

@@ -364,6 +364,9 @@ def _parse_yaml_intrinsics(path: Path, what: str) -> object:
         return yaml.safe_load(text)
     except yaml.YAMLError as e:
         raise InputError(f"{what} {path}: expected YAML, got a parse error: {' '.join(str(e).split())}") from None
+    except RecursionError:  # PyYAML recurses into every nested list and mapping
+        raise InputError(f"{what} {path}: expected a flat mapping of intrinsics, got YAML nested too deep "
+                         "to read") from None
 
 
 INTRINSICS_FORMATS: dict[str, Callable[[Path, str], object]] = {
@@ -433,12 +436,22 @@ def cameras_to_json(cameras: Sequence[Camera]) -> str:
     return json.dumps([c.to_json() for c in cameras], indent=2) + "\n"
 
 
+# the keys of a cameras.json entry
+CAMERA_KEYS = ("eye", "target", "up", "fov_deg", "width", "height", "cx", "cy")
+# how deeply cameras.json nests: a list of entries (under "cameras") holding lists of numbers
+CAMERAS_NESTING = 4
+
+
 def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera]:
     """Cameras from parsed cameras.json data (a list of entries, or ``{"cameras": [...]}``).
 
-    Raises ``InputError`` naming the entry and the missing or malformed field.
+    Raises ``InputError`` naming the entry and the missing, malformed or unknown field (an entry's keys are
+    :data:`CAMERA_KEYS`; ``{"cameras": [...]}`` has no other key).
     """
     if isinstance(data, dict) and "cameras" in data:
+        if len(data) > 1:
+            raise InputError(f"{source}: unknown key(s) {', '.join(sorted(map(repr, set(data) - {'cameras'})))}"
+                             " beside 'cameras'; allowed: cameras")
         data = data["cameras"]
     if not isinstance(data, list):
         raise InputError(f"{source}: expected a JSON list of camera entries, got {type(data).__name__}")
@@ -447,6 +460,10 @@ def cameras_from_json(data: object, source: str = "cameras.json") -> list[Camera
         if not isinstance(entry, dict):
             raise InputError(f"{source}: entry {i}: expected an object with eye, target, up, fov_deg, "
                              f"width, height, got {type(entry).__name__}")
+        unknown = sorted(str(k) for k in entry if k not in CAMERA_KEYS)
+        if unknown:
+            raise InputError(f"{source}: entry {i}: unknown key(s) {', '.join(map(repr, unknown))}; allowed: "
+                             f"{', '.join(CAMERA_KEYS)}")
         try:
             for key in ("eye", "target", "up"):
                 v = entry.get(key)
@@ -482,12 +499,20 @@ def save_cameras(path: str | Path, cameras: Sequence[Camera]) -> Path:
 
 
 def load_cameras(path: str | Path) -> list[Camera]:
-    """Read and validate a cameras.json file (``InputError`` with the file and entry on bad input)."""
+    """Read and validate a cameras.json file (``InputError`` with the file and entry on bad input; JSON
+    nested deeper than a cameras file, :data:`CAMERAS_NESTING`, is refused before it is parsed)."""
+    from ipm.files import read_json
+
     path = Path(path)
     if not path.is_file():
         raise InputError(f"cameras file: expected an existing file, got {path}")
     try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise InputError(f"{path}: expected JSON, got a parse error: {e}") from None
+        data = read_json(path, "cameras file", max_nesting=CAMERAS_NESTING,
+                         too_deep=f"expected a list of camera entries, JSON nested at most {CAMERAS_NESTING} deep "
+                                  "(the limit)")
+    except InputError as e:
+        head, sep, why = str(e).partition(" is not valid JSON: ")
+        if not sep:
+            raise
+        raise InputError(f"{head}: expected JSON, got a parse error: {why}") from None
     return cameras_from_json(data, str(path))

@@ -39,6 +39,11 @@ class Tree:
         self.root = root
         self.dim = dim
         visits = T.preorder(root)
+        depth, via = expanded_depth(root)
+        if depth > T.MAX_DEPTH:
+            raise InputError(f"expected a tree at most {T.MAX_DEPTH} levels deep with its macro nodes expanded "
+                             f"(the limit), got {depth} levels" + (f" (through the macro {via.type_name}, "
+                                                                   f"{via.levels} levels deep)" if via else ""))
         self.nodes: list[tuple[Node, str]] = [(v.node, v.path) for v in visits]
         self.spec, _, self._offsets = T.flat_spec(visits)
         self._fn = _compile(root, iter(range(len(visits))), self._offsets)
@@ -137,10 +142,36 @@ def _bind(fn, theta, slots) -> Eval:
 # Files
 # ----------------------------------------------------------------------------------------------
 
+def expanded_depth(root: Node) -> tuple[int, Node | None]:
+    """``(levels, macro)``: how many levels deep ``root``'s tree is with its macro nodes expanded (a macro
+    node counts as its ``levels``, an other node as one; without recursion), and the macro node that
+    adds the most levels on the deepest path (None if none does)."""
+    deepest, via = 0, None
+    stack: list[tuple[Node, int, Node | None]] = [(root, 0, None)]
+    while stack:
+        node, above, macro = stack.pop()
+        levels = getattr(type(node), "levels", 1)
+        if levels > 1 and (macro is None or levels > macro.levels):
+            macro = node
+        depth = above + levels
+        if depth > deepest:
+            deepest, via = depth, macro
+        stack.extend((c, depth, macro) for c in node.children)
+    return deepest, via
+
+
 def _slot(d: Mapping) -> Node | None:
     if "slot" not in d:
         return None
-    return SlotNode(size=int(d["slot"]), _dim=int(d.get("dim", 3)))
+    unknown = sorted(str(k) for k in d if k not in ("slot", "dim"))
+    if unknown:
+        raise InputError(f"macro slot {d['slot']!r}: unknown key(s) {', '.join(unknown)}; allowed: slot, dim")
+    size, dim = d["slot"], d.get("dim", 3)
+    if isinstance(size, bool) or not isinstance(size, int) or not 0 <= size < 1000:
+        raise InputError(f"macro slot: expected a child's number from 0 to 999, got {size!r}")
+    if isinstance(dim, bool) or dim not in (2, 3):
+        raise InputError(f"macro slot {size}: key 'dim': expected 2 or 3, got {dim!r}")
+    return SlotNode(size=size, _dim=dim)
 
 
 def node_from_dict(d: object, path: str = "root", *, allow_slots: bool = False) -> Node:
@@ -183,9 +214,14 @@ def tree_to_json(tree: Tree | Node, *, flat: bool = False) -> dict:
 
 def load_tree(path, dim: int | None = 3) -> Tree:
     """Read a tree file (nested or flat JSON; ``dim``: see :func:`tree_from_json`); :class:`InputError` with
-    a one-line reason on failure."""
-    return tree_from_json(T.read_json(path, "tree file"), dim)
+    a one-line reason on failure, naming the file."""
+    data = T.read_json(path, "tree file")
+    try:
+        return tree_from_json(data, dim)
+    except InputError as e:
+        msg = str(e).removeprefix("tree file: ")
+        raise InputError(msg if str(path) in msg else f"tree file {path}: {msg}") from None
 
 
-__all__ = ["EVAL_CHUNK", "Tree", "from_flat", "load_tree", "node_from_dict", "node_to_dict", "to_flat",
-           "tree_from_json", "tree_to_json"]
+__all__ = ["EVAL_CHUNK", "Tree", "expanded_depth", "from_flat", "load_tree", "node_from_dict", "node_to_dict",
+           "to_flat", "tree_from_json", "tree_to_json"]

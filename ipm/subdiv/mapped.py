@@ -95,10 +95,14 @@ def _midpoint_levels(V: np.ndarray, F: np.ndarray, levels: int):
 def mapped_pair(OV: np.ndarray, OF: np.ndarray, vertices: int, levels: int, method: str = "closest",
                 dtype=torch.float32) -> Pair:
     """A training pair from the closed mesh ``(OV, OF)``: decimated to about ``vertices``, each level's
-    vertices mapped onto the original by ``method`` (see the module docstring)."""
+    vertices mapped onto the original by ``method`` (see the module docstring). The mesh is checked first
+    as ``ipm subdivide`` checks its input (:func:`ipm.subdiv.linear.check_mesh` for neural subdivision:
+    edge-manifold, consistently oriented, closed): QEM decimation assumes as much, and fails inside libigl
+    otherwise."""
     from ipm.subdiv import SCHEMES
     from ipm.subdiv.linear import check_mesh
 
+    check_mesh(OF, len(OV), SCHEMES.get("neural"), 1)
     CV, CF = decimate(OV, OF, vertices)
     check_mesh(CF, len(CV), SCHEMES.get("neural"), levels)   # closed and consistently oriented
     targets = []

@@ -139,26 +139,51 @@ def save_weights(net: NeuralSubdivision, path: str | Path, extra: dict | None = 
     return write_bytes(path, buf.getvalue())
 
 
+# what a weights file is, for messages about files that are not one
+WEIGHTS_FILE = ("an .npz of plain arrays (one float array per network parameter and a JSON config entry, as "
+                "written by ipm train-subdivision)")
+# the most bytes a weights file's arrays may declare: the largest network (features 1024, hidden 4096)
+# with a checkpoint's Adam state is about 1 GB; more is refused from the arrays' headers before reading
+MAX_WEIGHTS_BYTES = 2 * 2**30
+
+
 def load_weights(path: str | Path) -> tuple[NeuralSubdivision, dict]:
     """The network in a weights file, and its other arrays; :class:`InputError` for a file that is not
-    one (unreadable, pickled objects, a missing or misshapen parameter)."""
+    one (unreadable, a single ``.npy`` array, pickled objects, arrays declaring more than
+    :data:`MAX_WEIGHTS_BYTES`, a missing or malformed config, a missing or misshapen parameter)."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"weights file: expected an existing .npz file, got {path}")
+    with open(path, "rb") as f:
+        magic = f.read(6)
+    if not (magic.startswith(b"PK") or magic == b"\x93NUMPY"):
+        raise InputError(f"weights file {path}: expected {WEIGHTS_FILE}, got a file that is no .npz (not a zip)")
+    _check_sizes(path)
     try:
-        with np.load(path, allow_pickle=False) as z:
+        z = np.load(path, allow_pickle=False, mmap_mode="r")  # a .npy is mapped, not read
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise InputError(f"weights file {path}: expected {WEIGHTS_FILE}, got a single array "
+                             f"({z.dtype} {tuple(z.shape)}: a .npy file)")
+        with z:
             arrays = {k: z[k] for k in z.files}
     except (ValueError, OSError, EOFError) as e:  # pickled objects, not a zip, truncated
+        if isinstance(e, InputError):
+            raise
         raise InputError(f"weights file {path}: expected an .npz of plain arrays, got an error: "
                          f"{str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
     try:
-        cfg = json.loads(str(arrays.pop("config")))
-        config = NetConfig(int(cfg["features"]), int(cfg["hidden"]))
+        text = str(arrays.pop("config"))
+        if len(text) > 1000:
+            raise ValueError
+        cfg = json.loads(text)
+        if any(isinstance(cfg[k], bool) or not isinstance(cfg[k], int) for k in ("features", "hidden")):
+            raise ValueError
+        config = NetConfig(cfg["features"], cfg["hidden"])
         if not (1 <= config.features <= 1024 and 1 <= config.hidden <= 4096):
             raise ValueError
-    except (KeyError, ValueError, TypeError):
-        raise InputError(f"weights file {path}: expected a config entry with features in 1..1024 and hidden "
-                         "in 1..4096") from None
+    except (KeyError, ValueError, TypeError, RecursionError):
+        raise InputError(f"weights file {path}: expected a config entry (JSON) with features in 1..1024 and "
+                         "hidden in 1..4096") from None
     net = NeuralSubdivision(config)
     state = net.state_dict()
     for k, v in state.items():
@@ -173,3 +198,28 @@ def load_weights(path: str | Path) -> tuple[NeuralSubdivision, dict]:
         state[k] = torch.as_tensor(a, dtype=v.dtype)
     net.load_state_dict(state)
     return net, {k: v for k, v in arrays.items() if not k.startswith("net.")}
+
+
+def _check_sizes(path: Path) -> None:
+    """:class:`InputError` if the arrays of the ``.npz`` at ``path`` declare more than
+    :data:`MAX_WEIGHTS_BYTES` in their headers (a small compressed file can declare gigabytes); other
+    files pass on to :func:`numpy.load`, which says what they are."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(path) as zf:
+            total = 0
+            for info in zf.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue
+                with zf.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(f)
+                total += int(np.prod(shape, dtype=object)) * dtype.itemsize
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, TypeError):
+        return  # not a zip of arrays: np.load's error names the problem
+    if total > MAX_WEIGHTS_BYTES:
+        raise InputError(f"weights file {path}: expected arrays of at most {MAX_WEIGHTS_BYTES // 2**30} GB in all "
+                         f"(the limit), got arrays declaring {total / 2**30:.1f} GB")

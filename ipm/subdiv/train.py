@@ -72,8 +72,13 @@ def _read(path: str) -> tuple[np.ndarray, np.ndarray]:
         m = trimesh.load_mesh(str(p), process=False, **kwargs)
         V = np.asarray(m.vertices, dtype=np.float64)
         F = np.asarray(m.faces, dtype=np.int64).reshape(-1, 3)
-    except Exception as e:  # trimesh raises many kinds of errors for broken files
-        raise InputError(f"real mesh {path}: expected a readable mesh file, got {type(e).__name__}") from None
+    except MemoryError:
+        raise
+    except Exception as e:  # trimesh raises many kinds of errors for broken files (and, for an ASCII STL of
+        # garbage, an ImportError: it reaches for charset_normalizer to guess the encoding)
+        why = "" if isinstance(e, ImportError) else f" ({type(e).__name__})"
+        raise InputError(f"real mesh {path}: expected a readable mesh (.ply, .obj, .stl, .glb, .off), got a file "
+                         f"that is not a valid {p.suffix.lower() or 'mesh'} file{why}") from None
     if len(F) == 0 or not np.isfinite(V).all():
         raise InputError(f"real mesh {path}: expected triangles with finite vertices")
     return V, F

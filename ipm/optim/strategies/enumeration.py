@@ -1,9 +1,17 @@
 """``enumerate``: every discrete combination (at most :data:`MAX_ENUMERATE`), refined by gradient with
-successive halving."""
+successive halving.
+
+Which parameters it searches: without ranges (``FitSettings.ranges``, ``--range``), every discrete
+parameter that is not fixed, and more than :data:`MAX_ENUMERATE` combinations are refused. Given ranges
+for some, only those (``ranged_only``: :class:`~ipm.optim.problem.Problem` holds the others at the
+start's values, the preset's, and the search says so in one info line), so that ``--range floors=4:10
+--range windows=2:6`` searches those two without fixing each of the building's other discrete parameters.
+"""
 
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 
 import numpy as np
@@ -12,6 +20,8 @@ from ipm.errors import InputError
 from ipm.optim.discrete import Refine, Space, best_pose, halving, halving_rungs, outlined
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
 from ipm.optim.strategies import STRATEGIES
+
+log = logging.getLogger(__name__)
 
 MAX_ENUMERATE = 64
 # combinations refined alike to the end of the search, then polished alike (run_fit's two leaders): a
@@ -37,6 +47,12 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
                        steps0: int | None = None) -> None:
     """All discrete combinations, refined from the best start with successive halving."""
     check(space.discrete)
+    given, fixed = getattr(settings, "ranges", None) or {}, getattr(settings, "fix", None) or {}
+    held = {k: v for k, v in space.fixed_discrete.items() if k not in fixed}
+    if given and held:
+        log.info("enumerate searches the discrete parameters given ranges (%s); the other %d stay at the start's "
+                 "values (%s)", ", ".join(p.name for p in space.discrete), len(held),
+                 ", ".join(f"{k}={v}" for k, v in held.items()))
     ranges = [range(int(p.lo), int(p.hi) + 1) for p in space.discrete]
     combos = [dict(zip((p.name for p in space.discrete), c)) for c in itertools.product(*ranges)]
     x0 = space.starts[0][0]
@@ -61,3 +77,4 @@ def enumerate_discrete(ev: Evaluator, space: Space, refine: Refine, rng: np.rand
 
 
 enumerate_discrete.check = check  # called by Problem before any evaluation or file
+enumerate_discrete.ranged_only = True  # given ranges for some discrete parameters, Problem searches only those
