@@ -1,4 +1,4 @@
-"""``ipm list generators|nodes|presets|strategies|losses|edits|methods``: what the registries hold."""
+"""``ipm list WHAT``: what the registries hold (every kind of extension; :data:`REGISTRIES`)."""
 
 from __future__ import annotations
 
@@ -9,14 +9,26 @@ import typer
 
 from ipm.cli.common import JsonOpt, LibraryOpt, UsageError, emit
 
-WHAT = ("generators", "nodes", "presets", "strategies", "losses", "edits", "methods")
+# the registries listed by name and first docstring line: (module, attribute, help)
+REGISTRIES = {
+    "strategies": ("ipm.optim.strategies", "STRATEGIES", "discrete search strategies of ipm fit --discrete"),
+    "losses": ("ipm.losses", "LOSSES", "mask losses of ipm fit --loss"),
+    "terms": ("ipm.optim.terms", "TERMS", "loss terms a fit sums (which apply depends on the target)"),
+    "edits": ("ipm.optim.structure.edits", "EDITS", "tree edits of ipm fit --structure search"),
+    "methods": ("ipm.bench.methods", "METHODS", "bench methods of experiment files"),
+    "meshnodes": ("ipm.generators.meshtree.node", "MESH_NODES", "mesh node types of mesh-tree generators"),
+    "schemes": ("ipm.subdiv", "SCHEMES", "subdivision schemes of ipm subdivide --method, ipm fit --subdivide"),
+    "converters": ("ipm.convert", "CONVERTERS", "conversion targets of ipm convert --to"),
+    "formats": ("ipm.io.export", "EXPORTERS", "mesh file formats written (by suffix)"),
+    "axes": ("ipm.io.meshes", "UP_AXES", "up axes of --up"),
+    "intrinsics": ("ipm.render.camera", "INTRINSICS_FORMATS", "camera intrinsics files read (by suffix)"),
+    "shapes": ("ipm.optim.shapes", "SHAPES", "shape adapters of the fit, one per kind of generator"),
+}
 HELP = {"generators": "procedural generators: kind, parameter counts, presets",
         "nodes": "SDF node types: dimension, children, parameters",
         "presets": "named starting points of every generator and tree",
-        "strategies": "discrete search strategies of ipm fit --discrete",
-        "losses": "mask losses of ipm fit --loss",
-        "edits": "tree edits of ipm fit --structure search",
-        "methods": "bench methods of experiment files"}
+        **{k: v[2] for k, v in REGISTRIES.items()}}
+WHAT = tuple(HELP)
 
 
 def _members(registry) -> list[dict]:
@@ -28,28 +40,11 @@ def _members(registry) -> list[dict]:
     return out
 
 
-def _strategies() -> list[dict]:
-    from ipm.optim.strategies import STRATEGIES
+def _registry(what: str) -> list[dict]:
+    import importlib
 
-    return _members(STRATEGIES)
-
-
-def _losses() -> list[dict]:
-    from ipm.losses import LOSSES
-
-    return _members(LOSSES)
-
-
-def _edits() -> list[dict]:
-    from ipm.optim.structure.edits import EDITS
-
-    return _members(EDITS)
-
-
-def _methods() -> list[dict]:
-    from ipm.bench.methods import METHODS
-
-    return _members(METHODS)
+    module, attr, _ = REGISTRIES[what]
+    return _members(getattr(importlib.import_module(module), attr))
 
 
 def _generators() -> list[dict]:
@@ -102,7 +97,7 @@ def register(app: typer.Typer) -> None:
         json_out: JsonOpt = False,
         library: LibraryOpt = None,
     ) -> None:
-        """List what the registries hold: generators, node types, presets, strategies, losses, methods."""
+        """List what the registries hold: generators, node types, presets, and every other kind of extension."""
         if what is None:  # what can be listed (cheap: no generator is loaded)
             emit({w: f"ipm list {w}" for w in WHAT} if json_out else
                  "\n".join(f"ipm list {w:<11} {HELP[w]}" for w in WHAT), json_out)
@@ -113,8 +108,8 @@ def register(app: typer.Typer) -> None:
             from ipm.sdf.complex import load_library
 
             load_library([str(p) for p in library])
-        rows = {"generators": _generators, "nodes": _nodes, "presets": _presets, "strategies": _strategies,
-                "edits": _edits, "losses": _losses, "methods": _methods}[what]()
+        special = {"generators": _generators, "nodes": _nodes, "presets": _presets}
+        rows = special[what]() if what in special else _registry(what)
         if json_out:
             emit(rows, True)
             return

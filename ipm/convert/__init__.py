@@ -4,30 +4,26 @@ and ``sdftree`` (the BSP fit written as an SDF node tree, :mod:`ipm.convert.sdft
 
 Every converter is ``fn(mesh, *, progress=None, seed=0, **options) -> Conversion``; its result holds a
 generator, the converted values and the JSON document that ``get_generator(path)`` and
-``ipm generate path`` load back. Converters are found by name in :data:`CONVERTERS` and imported lazily.
+``ipm generate path`` load back. Converters register themselves by name in :data:`CONVERTERS`
+(``@CONVERTERS.register("name")``; a new one is one new module in this package), found on first lookup, so
+``ipm --help`` does not import them.
 """
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 
 from ipm.errors import InputError
+from ipm.registry import Registry
 
-# name -> (module, function): imported on first use, so `ipm --help` stays fast
-CONVERTERS: dict[str, tuple[str, str]] = {
-    "bsp": ("ipm.convert.bsp", "fit_bsp"),
-    "perturb": ("ipm.convert.perturb", "convert_perturb"),
-    "sdftree": ("ipm.convert.sdftree", "convert_sdftree"),
-}
+CONVERTERS: Registry[Callable] = Registry("conversion target", packages=["ipm.convert"])
 
 
 def get_converter(name: str) -> Callable:
     """The converter registered as ``name``; ``InputError`` lists the known ones."""
     if name not in CONVERTERS:
         raise InputError(f"unknown conversion target {name!r}; expected one of {', '.join(CONVERTERS)}")
-    module, fn = CONVERTERS[name]
-    return getattr(importlib.import_module(module), fn)
+    return CONVERTERS.get(name)
 
 
 def convert(mesh, to: str, **options):

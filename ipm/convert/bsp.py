@@ -40,6 +40,7 @@ import time
 import numpy as np
 import torch
 
+from ipm.convert import CONVERTERS
 from ipm.convert.common import (
     Conversion,
     Progress,
@@ -298,6 +299,7 @@ def prune(planes: torch.Tensor, sel: np.ndarray, X: torch.Tensor, occ: torch.Ten
     return sel
 
 
+@CONVERTERS.register("bsp")
 def fit_bsp(mesh, *, planes: int = 16, convexes: int = 4, steps: int = 300, relaxed_steps: int | None = None,
             seed: int = 0, samples: int = 30_000, batch: int = 4096, lr: float = 0.01, prune_tol: float = 1e-4,
             overlap: float = 0.01, binarize: float = 1.0, extent: float = 1.5,

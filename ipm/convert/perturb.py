@@ -54,6 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ipm.convert import CONVERTERS
 from ipm.convert.common import Conversion, Progress, Target, check_positive, check_positive_int, prepare
 from ipm.generators.perturb import (
     BASE,
@@ -585,6 +586,7 @@ def _face_samples(target: Target, n: int, rng: np.random.Generator) -> tuple[np.
     return surface_with_normals(target, n, rng)
 
 
+@CONVERTERS.register("perturb")
 def convert_perturb(mesh, *, max_functions: int = 2000, tolerance: float = 0.01, progress: Progress | None = None,
                     normal_tolerance: float = 20.0, seed: int = 0, eps: float | None = None,
                     truncation: float = 0.03, normal_weight: float = 4.0, volume_samples: int = 20_000,

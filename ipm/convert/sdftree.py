@@ -19,6 +19,7 @@ import time
 
 import numpy as np
 
+from ipm.convert import CONVERTERS
 from ipm.convert.common import Conversion, Progress
 from ipm.errors import InputError
 from ipm.generators.bsp import convex_cells
@@ -54,6 +55,7 @@ def bsp_tree(planes: np.ndarray, selection: np.ndarray, extent: float, tol: floa
     return {"tree": {"node": "intersection", "children": [union, box]}}
 
 
+@CONVERTERS.register("sdftree")
 def convert_sdftree(mesh, *, progress: Progress | None = None, seed: int = 0, **bsp_options) -> Conversion:
     """Fit a BSP to ``mesh`` (:func:`ipm.convert.bsp.fit_bsp`, same options) and write it as an SDF tree.
 

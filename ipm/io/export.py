@@ -12,26 +12,30 @@ from pathlib import Path
 
 from ipm.errors import InputError
 from ipm.files import atomic_path, write_text
+from ipm.registry import Registry
 from ipm.types import TriMesh
 
-EXPORTERS: dict[str, Callable] = {}
+EXPORTERS: Registry[Callable] = Registry("mesh format")
 
 
 def exporter(*suffixes: str):
+    """Register ``fn(trimesh, path, meta)`` as the writer of files with these suffixes."""
     def deco(fn):
         for s in suffixes:
-            EXPORTERS[s] = fn
+            EXPORTERS.add(s, fn)
         return fn
     return deco
 
 
 @exporter(".obj", ".ply", ".stl")
 def _export_plain(tm, path: Path, meta: dict) -> None:
+    """Wavefront OBJ, PLY or STL through trimesh (the metadata goes to the .params.json sidecar only)."""
     tm.export(str(path), file_type=_kind(path))
 
 
 @exporter(".glb")
 def _export_glb(tm, path: Path, meta: dict) -> None:
+    """Binary glTF, the metadata ({generator, params, ipm_version}) in the scene's extras."""
     from trimesh.exchange.gltf import export_glb
 
     scene = tm.scene()

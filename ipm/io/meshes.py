@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
+from ipm.registry import Registry
 from ipm.types import TriMesh
 
 log = logging.getLogger(__name__)
@@ -23,23 +24,28 @@ log = logging.getLogger(__name__)
 MESH_SUFFIXES = (".ply", ".obj", ".stl", ".glb", ".gltf", ".off")
 
 
+def _y_up(v: torch.Tensor) -> torch.Tensor:
+    """Y is up already: the vertices as they are."""
+    return v
+
+
 def _z_up(v: torch.Tensor) -> torch.Tensor:
-    # rotate -90 degrees about X: (x, y, z) -> (x, z, -y); right-handed stays right-handed
+    """Z up: rotated -90 degrees about X, (x, y, z) -> (x, z, -y) (right-handed stays right-handed)."""
     return torch.stack([v[:, 0], v[:, 2], -v[:, 1]], 1)
 
 
-# Up-axis conversions to the project's Y-up convention, by the name given with ``--up``.
-UP_AXES: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
-    "y": lambda v: v,
-    "z": _z_up,
-}
+# Up-axis conversions to the project's Y-up convention, by the name given with ``--up`` (another axis is one
+# more ``UP_AXES.add(name, fn)``)
+UP_AXES: Registry[Callable[[torch.Tensor], torch.Tensor]] = Registry("up axis")
+UP_AXES.add("y", _y_up)
+UP_AXES.add("z", _z_up)
 
 
 def to_y_up(verts: torch.Tensor, up: str) -> torch.Tensor:
     """Vertices (V, 3) rotated so that the axis named ``up`` ("y" or "z") becomes +Y."""
     try:
         return UP_AXES[up.lower()](verts)
-    except KeyError:
+    except (KeyError, InputError, AttributeError):
         raise InputError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}") from None
 
 

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 
 from ipm import losses as L
+from ipm.registry import Registry
 from ipm.types import Camera, TriMesh
 
 # blur of the polish of silhouette fits, relative to the search's: 0.03 px^2 by default, where the soft
@@ -195,10 +196,12 @@ class SdfShape:
         return L.sdf_surface_loss(f(pts)) + 0.1 * L.occupancy_loss(f(vol), occupied)
 
 
-#: the adapter of each kind of generator (``Generator.kind``)
-SHAPES: dict[str, type] = {"mesh": MeshShape, "sdf": SdfShape}
+#: the adapter of each kind of generator (``Generator.kind``): another kind is one more ``SHAPES.add``
+SHAPES: Registry[type] = Registry("shape adapter")
+SHAPES.add("mesh", MeshShape)
+SHAPES.add("sdf", SdfShape)
 
 
 def shape_for(gen, settings, dtype: torch.dtype) -> Shape:
     """The adapter of ``gen``'s kind."""
-    return SHAPES[gen.kind](gen, settings, dtype)
+    return SHAPES.get(gen.kind)(gen, settings, dtype)

@@ -35,6 +35,7 @@ from pathlib import Path
 import torch
 
 from ipm.errors import InputError
+from ipm.registry import Registry
 from ipm.types import Camera
 
 # The evaluation protocol (DESIGN.md).
@@ -349,12 +350,14 @@ def _intrinsics_from_mapping(data: object, where: str) -> Intrinsics:
 
 
 def _parse_json_intrinsics(path: Path, what: str) -> object:
+    """JSON: fx fy cx cy width height, or a 3x3 K with width and height."""
     from ipm.files import read_json
 
     return read_json(path, what)
 
 
 def _parse_yaml_intrinsics(path: Path, what: str) -> object:
+    """YAML: the JSON keys, or ClearGrasp's camera_intrinsics.yaml (fx fy cx cy xres yres)."""
     import yaml
 
     from ipm.files import read_text
@@ -369,11 +372,11 @@ def _parse_yaml_intrinsics(path: Path, what: str) -> object:
                          "to read") from None
 
 
-INTRINSICS_FORMATS: dict[str, Callable[[Path, str], object]] = {
-    ".json": _parse_json_intrinsics,
-    ".yaml": _parse_yaml_intrinsics,
-    ".yml": _parse_yaml_intrinsics,
-}
+# intrinsics file parsers by suffix: (path, what) -> a mapping of intrinsics (another format is one more add)
+INTRINSICS_FORMATS: Registry[Callable[[Path, str], object]] = Registry("intrinsics format")
+INTRINSICS_FORMATS.add(".json", _parse_json_intrinsics)
+INTRINSICS_FORMATS.add(".yaml", _parse_yaml_intrinsics)
+INTRINSICS_FORMATS.add(".yml", _parse_yaml_intrinsics)
 
 
 def load_intrinsics(path: str | Path) -> Intrinsics:
@@ -389,7 +392,7 @@ def load_intrinsics(path: str | Path) -> Intrinsics:
     """
     path = Path(path)
     what = "intrinsics file"
-    parse = INTRINSICS_FORMATS.get(path.suffix.lower())
+    parse = INTRINSICS_FORMATS.get(path.suffix.lower()) if path.suffix.lower() in INTRINSICS_FORMATS else None
     if parse is None:
         raise InputError(f"{what} {path}: expected a {', '.join(INTRINSICS_FORMATS)} file, "
                          f"got suffix {path.suffix or '(none)'!r}")

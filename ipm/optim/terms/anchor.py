@@ -11,6 +11,8 @@ from ipm.optim.terms import TERMS, Evaluation
 
 @TERMS.register()
 class Anchor:
+    """Single-view fits without depth: anchored parameters charged for leaving their start."""
+
     name = "anchor"
     order = 50
 

@@ -13,6 +13,8 @@ from ipm.optim.terms import TERMS, Evaluation
 
 @TERMS.register()
 class Depth:
+    """The rendered depth against the target's depth maps."""
+
     name = "depth"
     order = 30
 

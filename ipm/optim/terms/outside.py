@@ -31,6 +31,8 @@ def outside_share(verts: torch.Tensor, cams: list[Camera]) -> torch.Tensor:
 
 @TERMS.register()
 class Outside:
+    """Geometry projected outside the images where that is known to be background (a photo's crop)."""
+
     name = "outside"
     order = 20
 

@@ -9,6 +9,8 @@ from ipm.optim.terms import TERMS, Evaluation
 
 @TERMS.register()
 class PartCost:
+    """A description length: a loss per part the discrete values add."""
+
     name = "part_cost"
     order = 60
 

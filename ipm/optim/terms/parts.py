@@ -45,6 +45,8 @@ def soft_parts(mesh: TriMesh, rast, cam: Camera, index: list[int]) -> torch.Tens
 
 @TERMS.register()
 class Parts:
+    """Soft masks of the named parts' visible faces against the target's part labels."""
+
     name = "parts"
     order = 31
 

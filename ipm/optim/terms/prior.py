@@ -11,6 +11,8 @@ from ipm.optim.terms import TERMS, Evaluation
 
 @TERMS.register()
 class Prior:
+    """A pull towards the starting preset in normalized space."""
+
     name = "prior"
     order = 40
 

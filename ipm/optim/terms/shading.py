@@ -13,6 +13,8 @@ from ipm.optim.terms import TERMS, Evaluation
 
 @TERMS.register()
 class Shading:
+    """The rendered normals, shaded by the best light, against the grey photo."""
+
     name = "shading"
     order = 32
 

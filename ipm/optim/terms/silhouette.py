@@ -24,6 +24,8 @@ def centroids(masks: torch.Tensor) -> list[list[float]]:
 
 @TERMS.register()
 class Silhouette:
+    """The mask loss between the soft silhouettes and the target masks."""
+
     name = "silhouette"
     order = 10
 

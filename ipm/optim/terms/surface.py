@@ -12,6 +12,8 @@ from ipm.optim.terms import TERMS, Evaluation
 
 @TERMS.register()
 class Surface:
+    """For a mesh target: the distance to its surface (and, for a field, its inside)."""
+
     name = "surface"
     order = 10
 

@@ -19,6 +19,8 @@ WEIGHTS = Path(__file__).resolve().parents[1] / "weights" / "neural_dishes.npz"
 
 @dataclass
 class NeuralScheme:
+    """Neural subdivision (Liu et al. 2020): half-flap MLPs, the weights shipped in ipm/subdiv/weights."""
+
     name: str = "neural"
     boundary: bool = False
     weights: Path = WEIGHTS
