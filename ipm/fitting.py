@@ -8,8 +8,15 @@
 The run folder holds ``settings.json``, ``trajectory.jsonl`` (every evaluation; also the checkpoint),
 ``params.json``, ``mesh.glb``, ``mesh.obj``, ``result.json``, ``overlay_000.png`` ... and ``loss.png``.
 ``resume=True`` continues an interrupted run: the recorded evaluations are replayed, so with the same
-seed the run ends where an uninterrupted one would (a replay that differs from its record raises
-:class:`~ipm.errors.InputError` naming the folder), and ``wall_time_s`` counts the time of every run.
+seed the run ends where an uninterrupted one would (a replay that differs from its record, in the points
+asked for or in the losses of the records it re-evaluates, raises :class:`~ipm.errors.InputError` naming
+the folder), and ``wall_time_s`` counts the time of every run. ``settings.json`` keeps absolute paths (the
+target's files, a generator file, macro folders), so a run resumes from any working folder; a damaged
+``settings.json`` or ``trajectory.jsonl`` is an :class:`~ipm.errors.InputError` naming the file and the
+field. A first run that fails on bad input (a full disk included) leaves no run folder behind; the final
+files (``params.json`` to ``result.json``) are written all together or not at all.
+
+:func:`fit_structure` does the same for a structure search (``checkpoint.json`` after every round).
 """
 
 from __future__ import annotations
@@ -42,7 +49,7 @@ def _settings_from_json(d: dict):
 
 
 @one_by_default
-def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
+def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | Path | None = None, up: str = "y",
         depth: str | Path | None = None, depth_scale: float = 0.001, parts: str | Path | None = None,
         image: str | Path | None = None, mask: str | Path | None = None, box=None,
         intrinsics: str | Path | None = None, photo_size: int = 128, ground: bool = True,
@@ -54,39 +61,72 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
     Targets (:mod:`ipm.io.fit_targets`): ``masks`` (a mask-set folder) with optional ``depth`` and ``parts``
     folders; a photo ``image`` with its ``mask`` or a ``box`` around the object, optional ``depth`` (a file)
     and ``intrinsics`` (the camera is fitted: with intrinsics its pose only; with depth too, ``ground`` holds
-    its elevation at the plane the object stands on, :mod:`ipm.io.ground`); or ``target_mesh``."""
-    from ipm.generators import get_generator
+    its elevation at the plane the object stands on, :mod:`ipm.io.ground`); or ``target_mesh``.
+
+    The run folder's ``settings.json`` records what the run needs to resume from any working folder: the
+    target's files and the generator's file and ``library`` folders as absolute paths, resolved when the
+    run starts. ``resume=True`` reads it (``generator`` may then be left out: the run's own is built again;
+    a given one must have the run's generator's name), checks ``settings.json`` and every record of
+    ``trajectory.jsonl`` against their schema (:mod:`ipm.io.runs`) and replays the records; the replay
+    re-evaluates a few of them (:class:`~ipm.optim.evaluator.Evaluator`) and refuses records whose loss
+    differs. Every refusal is an :class:`~ipm.errors.InputError` naming the file.
+
+    A first run that fails on bad input (a full disk included) leaves no run folder behind
+    (:func:`ipm.io.runs.first_run`; an interruption keeps the records, a run to resume); a resume that
+    fails keeps the folder's run resumable. The final files are written all together or not at all."""
     from ipm.io.fit_targets import TargetFiles, load_target
-    from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, read_trajectory, write_json
+    from ipm.io.runs import (
+        SETTINGS,
+        TRAJECTORY,
+        Trajectory,
+        final_files,
+        first_run,
+        read_run_file,
+        read_trajectory,
+        write_json,
+    )
     from ipm.optim.evaluator import ReplayMismatch
     from ipm.optim.fit import FitSettings, hard_scores, run_fit
     from ipm.optim.problem import Problem
 
-    gen = get_generator(generator, library=library) if isinstance(generator, str) else generator
     replay: list[dict] = []
     run_dir = Path(run_dir) if run_dir is not None else None
     if resume:
-        if run_dir is None or not (run_dir / SETTINGS).is_file():
-            raise InputError(f"--resume: expected a run folder with {SETTINGS}, got {run_dir}")
+        if run_dir is None:
+            raise InputError("--resume: expected a run folder, got none")
+        saved = read_run_file(run_dir)
+        where = f"--resume: run settings {run_dir / SETTINGS}"
+        library = library or saved.library
+        if generator is None:
+            generator = saved.source or saved.generator
+        gen = _generator(generator, library)
+        if gen.name != saved.generator:
+            raise InputError(f"--resume {run_dir}: expected the run's generator {saved.generator!r}, got {gen.name!r}")
+        source = saved.source
         try:
-            saved = json.loads((run_dir / SETTINGS).read_text())
-        except json.JSONDecodeError as e:
-            raise InputError(f"--resume {run_dir}: expected JSON in {SETTINGS}, got {e.msg} at line {e.lineno}"
-                             ) from None
-        if not isinstance(saved, dict) or "settings" not in saved:
-            raise InputError(f"--resume {run_dir}: expected the settings of a run in {SETTINGS}, got none")
-        if saved.get("generator") != gen.name:
-            raise InputError(f"--resume {run_dir}: expected the run's generator {saved.get('generator')!r}, "
-                             f"got {gen.name!r}")
-        cfg = _settings_from_json(saved["settings"])
-        saved_files = saved.get("target") or {k: saved.get(k) for k in ("masks", "target_mesh", "up") if saved.get(k)}
-        if not isinstance(saved_files, dict):
-            raise InputError(f"--resume {run_dir}: expected the target's files in {SETTINGS}, got {saved_files!r:.60}")
-        files = TargetFiles.from_json(saved_files)
-        replay = read_trajectory(run_dir / TRAJECTORY)
+            cfg = _settings_from_json(saved.settings)
+            cfg.check()
+        except InputError as e:
+            raise InputError(f"{where}: settings: {e}") from None
+        saved_files = saved.target if saved.target is not None else {
+            k: getattr(saved, k) for k in ("masks", "target_mesh", "up") if getattr(saved, k) is not None}
+        try:
+            files = TargetFiles.from_json(saved_files)
+        except InputError as e:
+            raise InputError(f"{where}: target: {e}") from None
+        try:
+            replay = read_trajectory(run_dir / TRAJECTORY)
+        except InputError as e:
+            raise InputError(f"--resume: {e}") from None
     else:
-        def opt(p):
-            return None if p is None else str(p)
+        if generator is None:
+            raise InputError("expected a generator: a name, a tree file or a Generator")
+        gen = _generator(generator, library)
+        source = _source(generator) if isinstance(generator, str) else None
+        library = [str(Path(d).resolve()) for d in library] if library else None
+
+        def opt(p):  # absolute, so that the run resumes from any working folder
+            return None if p is None else str(Path(p).resolve())
 
         files = TargetFiles(masks=opt(masks), target_mesh=opt(target_mesh), up=up, depth=opt(depth),
                             depth_scale=depth_scale, parts=opt(parts), image=opt(image), mask=opt(mask),
@@ -99,26 +139,48 @@ def fit(generator, *, masks: str | Path | None = None, target_mesh: str | Path |
     target, photo = load_target(files, camera=cfg.camera, device=device)
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written
     sink = None
-    if run_dir is not None:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        write_json(run_dir / SETTINGS, {"generator": gen.name, "settings": cfg.to_json(), "target": files.to_json()})
-        sink = Trajectory(run_dir / TRAJECTORY, keep=len(replay))
-    try:
-        result, prob, best = run_fit(gen, target, cfg, sink=sink, replay=replay, progress=progress)
-    except ReplayMismatch as e:
-        raise InputError(f"--resume {run_dir}: the run does not match its recorded trajectory: {e}") from e
-    finally:
-        if sink is not None:
-            sink.close()
-    scores = hard_scores(prob, best)
-    if photo is not None:
-        scores.update(photo_scores(prob, best, photo))
-    if run_dir is not None:
-        out = save_run(run_dir, prob, best, result, cfg, scores, photo)
-        scores, pose = out["scores"], out["pose"]
-    else:
-        pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True)
+    with first_run(run_dir, resume=resume):
+        if run_dir is not None:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            if not resume:  # a resume keeps the run's own settings.json
+                write_json(run_dir / SETTINGS, {"generator": gen.name, "source": source, "library": library,
+                                                "settings": cfg.to_json(), "target": files.to_json()})
+            sink = Trajectory(run_dir / TRAJECTORY, keep=len(replay))
+        try:
+            result, prob, best = run_fit(gen, target, cfg, sink=sink, replay=replay, progress=progress)
+        except ReplayMismatch as e:
+            raise InputError(f"--resume {run_dir}: the run does not match its recorded trajectory "
+                             f"{run_dir / TRAJECTORY}: {e}") from e
+        finally:
+            if sink is not None:
+                sink.close()
+        scores = hard_scores(prob, best)
+        if photo is not None:
+            scores.update(photo_scores(prob, best, photo))
+        if run_dir is not None:
+            with final_files(run_dir) as staged:  # the final files all at once, or none of them
+                out = save_run(staged, prob, best, result, cfg, scores, photo, trajectory=run_dir / TRAJECTORY)
+            scores, pose = out["scores"], out["pose"]
+        else:
+            pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True)
     return replace(result, scores=scores, pose=pose, run_dir=None if run_dir is None else str(run_dir))
+
+
+def _generator(generator, library: list[str] | None):
+    """``generator`` itself, or the generator a name or file names (:func:`ipm.generators.get_generator`)."""
+    from ipm.generators import get_generator
+
+    return get_generator(generator, library=library) if isinstance(generator, str) else generator
+
+
+def _source(name: str) -> str:
+    """What builds the generator ``name`` again from any working folder: a generator file's absolute path,
+    else the name (a registered generator or a named shape)."""
+    from ipm.generators.base import GENERATORS
+
+    if name not in GENERATORS and Path(name).is_file():
+        return str(Path(name).resolve())
+    return name
 
 
 def photo_scores(prob, best: dict, photo) -> dict:
@@ -172,9 +234,10 @@ def _parts_px(mesh, rast) -> dict:
 
 
 def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
-             scores: dict, photo=None) -> dict:
+             scores: dict, photo=None, *, trajectory: Path | None = None) -> dict:
     """Write params.json, mesh.glb, mesh.obj, result.json and pictures into ``run_dir`` (with a photo
-    target, ``overlay_photo.png``: the fit's outline over the photo)."""
+    target, ``overlay_photo.png``: the fit's outline over the photo); the loss plot reads ``trajectory``
+    (default: the one in ``run_dir``)."""
     import numpy as np
 
     import ipm
@@ -209,7 +272,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
     from ipm.io.runs import TRAJECTORY, read_trajectory
     from ipm.viz.plots import plot_losses
 
-    losses = [r["loss"] for r in read_trajectory(run_dir / TRAJECTORY)]
+    losses = [r["loss"] for r in read_trajectory(trajectory or run_dir / TRAJECTORY)]
     if losses:
         plot_losses({"loss": losses, "best so far": list(np.minimum.accumulate(losses))}, run_dir / "loss.png",
                     title=f"{prob.gen.name}: loss per evaluation")
@@ -269,39 +332,70 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
     (every tree tried: its edit, structure, nodes, IoU, score, evaluations, the tree), ``tree.json`` (the
     recovered tree, nested, which ``ipm generate`` loads), ``mesh.obj`` (that tree meshed as ``ipm
     generate`` does) and ``result.json``. ``resume=True`` continues after the last finished round and ends
-    where an uninterrupted run would. Returns ``result.json``'s content."""
-    from ipm.files import write_text
-    from ipm.io.runs import RESULT, SETTINGS, Trajectory, write_json
+    where an uninterrupted run would; it checks ``settings.json`` and ``checkpoint.json`` against their
+    schema (:class:`~ipm.io.runs.StructureRunFile`, :class:`~ipm.optim.structure.search.State`) and scores
+    the checkpoint's trees again (:func:`~ipm.optim.structure.search.verify_state`): a damaged or edited
+    file is an :class:`~ipm.errors.InputError` naming it and the field. Paths are kept absolute (a run
+    resumes from any working folder); a first run that fails on bad input leaves no run folder behind, and
+    the final files are written all together or not at all. Returns ``result.json``'s content."""
+    from ipm.files import refused, write_text
+    from ipm.io.runs import (
+        RESULT,
+        SETTINGS,
+        StructureRunFile,
+        Trajectory,
+        checked,
+        final_files,
+        first_run,
+        read_json_file,
+        read_json_lines,
+        read_run_file,
+        write_json,
+    )
     from ipm.optim.structure import StructureSettings, count_nodes, mask_samples, mesh_samples, primitive_counts
     from ipm.optim.structure import search as run_search
     from ipm.optim.structure.program import signature, structure
+    from ipm.optim.structure.search import State, verify_state
     from ipm.sdf.tree import load_tree, tree_to_json
 
     run_dir = Path(run_dir) if run_dir is not None else None
     state = None
+    ckpt = None if run_dir is None else run_dir / STRUCTURE_CHECKPOINT
     if resume:
-        if run_dir is None or not (run_dir / SETTINGS).is_file():
-            raise InputError(f"--resume: expected a run folder with {SETTINGS}, got {run_dir}")
-        saved = _read_run_json(run_dir / SETTINGS, run_dir)
-        if not isinstance(saved, dict) or "structure" not in saved:
-            raise InputError(f"--resume {run_dir}: expected the settings of a structure search in {SETTINGS}")
-        cfg = StructureSettings.from_json(saved["structure"])
-        files = saved.get("target") or {}
-        target_mesh, up, masks, start = files.get("target_mesh"), files.get("up", "y"), files.get("masks"), \
-            saved.get("start")
-        if (run_dir / STRUCTURE_CHECKPOINT).is_file():
-            state = _read_run_json(run_dir / STRUCTURE_CHECKPOINT, run_dir)
-            need = ("round", "beam", "best", "stale", "used", "elapsed", "records")
-            if not isinstance(state, dict) or any(k not in state for k in need) or not state["beam"]:
-                raise InputError(f"--resume {run_dir}: expected a structure search's checkpoint in "
-                                 f"{STRUCTURE_CHECKPOINT} (keys {', '.join(need)}), got another file")
+        if run_dir is None:
+            raise InputError("--resume: expected a run folder, got none")
+        saved = read_run_file(run_dir, StructureRunFile)
+        try:
+            cfg = StructureSettings.from_json(saved.structure)
+        except InputError as e:
+            raise InputError(f"--resume: run settings {run_dir / SETTINGS}: {e}") from None
+        target_mesh, up, masks, start = saved.target.target_mesh, saved.target.up, saved.target.masks, saved.start
+        if ckpt.is_file():
+            where = f"--resume: structure search checkpoint {ckpt}"
+            try:
+                state = read_json_file(ckpt, "structure search checkpoint")
+            except InputError as e:
+                raise InputError(f"--resume: {e}") from None
+            checked(state, State, where)
+            try:
+                records = read_json_lines(run_dir / STRUCTURE_TRAJECTORY, "structure search records")
+            except InputError as e:
+                raise InputError(f"--resume: {e}") from None
+            if len(records) < state["records"]:
+                raise InputError(f"{where}: records: expected at most the {len(records)} records of "
+                                 f"{STRUCTURE_TRAJECTORY}, got {state['records']}")
     else:
         cfg = StructureSettings(**settings)
+
+        def opt(p):  # absolute, so that the run resumes from any working folder
+            return None if p is None else str(Path(p).resolve())
+
+        target_mesh, masks, start = opt(target_mesh), opt(masks), opt(start)
     cfg.check()
     if (target_mesh is None) == (masks is None):
         raise InputError("structure search: expected one target, a mesh or a mask set of K >= 2 views")
     start_tree = None
-    if start is not None:
+    if start is not None and state is None:  # a checkpoint's beam replaces the start
         start_tree = tree_to_json(load_tree(start))["tree"]
     frame = None
     if target_mesh is not None:
@@ -320,44 +414,48 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
         samples = mask_samples(target.masks.cpu().numpy(), target.cameras, volume=cfg.volume, grid=cfg.grid,
                                seed=cfg.seed)
     samples = samples.to(device=device, dtype=torch.float32)
+    if state is not None:
+        try:
+            verify_state(state, samples, cfg)
+        except InputError as e:
+            raise InputError(f"--resume: structure search checkpoint {ckpt}: {e}") from None
     sink = checkpoint = None
-    if run_dir is not None:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        write_json(run_dir / SETTINGS, {"structure": cfg.to_json(), "start": None if start is None else str(start),
-                                        "target": {"target_mesh": None if target_mesh is None else str(target_mesh),
-                                                   "up": up, "masks": None if masks is None else str(masks)}})
-        sink = Trajectory(run_dir / STRUCTURE_TRAJECTORY, keep=int(state["records"]) if state else 0)
+    with first_run(run_dir, resume=resume):
+        if run_dir is not None:
+            run_dir.mkdir(parents=True, exist_ok=True)
+            if not resume:  # a resume keeps the run's own settings.json
+                write_json(run_dir / SETTINGS, {"structure": cfg.to_json(), "start": start,
+                                                "target": {"target_mesh": target_mesh, "up": up, "masks": masks}})
+            sink = Trajectory(run_dir / STRUCTURE_TRAJECTORY, keep=int(state["records"]) if state else 0)
 
-        def checkpoint(st: dict) -> None:
-            write_text(run_dir / STRUCTURE_CHECKPOINT, json.dumps(st) + "\n")
-    try:
-        res = run_search(samples, cfg, start=start_tree, state=state, checkpoint=checkpoint, record=sink,
-                         progress=progress)
-    finally:
-        if sink is not None:
-            sink.close()
-    out = {"structure": structure(res.tree), "nodes": count_nodes(res.tree), "primitives": primitive_counts(res.tree),
-           "adds": list(signature(res.tree)[0]), "cuts": list(signature(res.tree)[1]), "fit_iou": res.iou,
-           "fit_iou_of": "occupancy on the sample grid" if masks is None else "silhouettes at the mask rays",
-           "score": res.score, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
-           "rounds": res.rounds, "stopped": res.stopped, "frame": frame}
-    if run_dir is not None:
-        from ipm.generators import get_generator
-        from ipm.io.export import export_mesh
+            def checkpoint(st: dict) -> None:
+                try:
+                    write_text(ckpt, json.dumps(st) + "\n")
+                except OSError as e:
+                    raise refused(ckpt, e) from None
+        try:
+            res = run_search(samples, cfg, start=start_tree, state=state, checkpoint=checkpoint, record=sink,
+                             progress=progress)
+        finally:
+            if sink is not None:
+                sink.close()
+        out = {"structure": structure(res.tree), "nodes": count_nodes(res.tree),
+               "primitives": primitive_counts(res.tree), "adds": list(signature(res.tree)[0]),
+               "cuts": list(signature(res.tree)[1]), "fit_iou": res.iou,
+               "fit_iou_of": "occupancy on the sample grid" if masks is None else "silhouettes at the mask rays",
+               "score": res.score, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
+               "rounds": res.rounds, "stopped": res.stopped, "frame": frame}
+        if run_dir is not None:
+            from ipm.generators import get_generator
+            from ipm.io.export import export_mesh
 
-        write_json(run_dir / "tree.json", {"tree": res.tree})
-        gen = get_generator(str(run_dir / "tree.json"))
-        values = gen.spec.defaults()
-        export_mesh(gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION), run_dir / "mesh.obj", gen.metadata(values),
-                    sidecar=False)
-        out["run"] = str(run_dir)
-        write_json(run_dir / RESULT, out)
+            out["run"] = str(run_dir)
+            with final_files(run_dir) as staged:  # the final files all at once, or none of them
+                write_json(staged / "tree.json", {"tree": res.tree})
+                gen = get_generator(str(staged / "tree.json"))
+                values = gen.spec.defaults()
+                export_mesh(gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION), staged / "mesh.obj",
+                            gen.metadata(values), sidecar=False)
+                write_json(staged / RESULT, out)
     out["tree"] = res.tree
     return out
-
-
-def _read_run_json(path: Path, run_dir: Path):
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as e:
-        raise InputError(f"--resume {run_dir}: expected JSON in {path.name}, got {e.msg} at line {e.lineno}") from None

@@ -4,22 +4,36 @@ Rows are appended to ``rows.jsonl`` as soon as a cell finishes, so an interrupte
 stopped (``resume=True`` skips the cells already in the file). Cells run inline (one worker), in local
 worker processes, or on a Dask distributed cluster (``scheduler`` address); all three run the same
 function, :func:`run_cell`.
+
+A resume reads ``rows.jsonl`` checked (:class:`Row`: a line that is not a row, a field of the wrong type,
+a key that does not match its target, method, views and seed, a cell twice: an
+:class:`~ipm.errors.InputError` naming the file and the line) and only into a folder of the same
+experiment: ``experiment.json`` (:data:`IDENTITY`) records the experiment's name, file and an identity
+per cell (a hash of what its row depends on: the protocol's settings, the target's definition and mesh
+file's content, the method's settings and budget; :func:`cell_identities`). Cells may be added (a
+method, a seed); a row whose cell the experiment no longer has, or has with other settings, is refused,
+naming both experiments. A folder of rows without ``experiment.json`` (written before it was kept) is
+accepted when each row is a cell of the experiment.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import logging
 import os
 import time
 from collections.abc import Callable
-from contextlib import contextmanager
-from dataclasses import dataclass
+from contextlib import contextmanager, suppress
+from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Annotated, Literal
 
+import msgspec
 import numpy as np
 import torch
+from msgspec import Meta
 
 from ipm import threads
 from ipm.bench.config import Cell, Experiment, load_experiment
@@ -228,17 +242,112 @@ def _run_cell(exp_path: str, cell: Cell, out_dir: str | None) -> dict:
     return row
 
 
+class Row(msgspec.Struct, rename={"fscore_002": "fscore@0.02", "fscore_005": "fscore@0.05"}):
+    """The schema of a line of ``rows.jsonl`` (further fields are a method's own); the numbers the tables
+    read are numbers where given."""
+
+    key: str
+    target: str
+    method: str
+    views: Annotated[int, Meta(ge=1)]
+    seed: Annotated[int, Meta(ge=0)]
+    status: Literal["ok", "failed"]
+    heldout_iou: float | None = None
+    fscore_002: float | None = None
+    fscore_005: float | None = None
+    chamfer_l1: float | None = None
+    iou_3d: float | None = None
+    param_error: float | None = None
+    discrete_accuracy: float | None = None
+    align_scale: float | None = None
+    wall_time_s: float | None = None
+    evaluations: int | None = None
+    cues: list[str] | None = None
+    error: str | None = None
+
+
 def read_rows(out_dir: Path) -> list[dict]:
+    """The rows of ``out_dir/rows.jsonl`` (none without the file), each checked (:class:`Row`; a torn last
+    line is dropped); :class:`InputError` names the file and the line of anything else."""
+    from ipm.io.runs import read_json_lines
+
     path = Path(out_dir) / ROWS
-    if not path.is_file():
-        return []
-    rows = []
-    for line in path.read_text().splitlines():
-        try:
-            rows.append(json.loads(line))
-        except json.JSONDecodeError:
-            break  # a torn last line from an interrupted run
+    rows = read_json_lines(path, "bench rows", Row)
+    seen: dict[str, int] = {}
+    for n, r in enumerate(rows, 1):
+        key = f"{r['target']}|{r['method']}|{r['views']}|{r['seed']}"
+        if r["key"] != key:
+            raise InputError(f"bench rows {path}: line {n}: key: expected {key!r} (its target, method, views and "
+                             f"seed), got {r['key']!r}")
+        if key in seen:
+            raise InputError(f"bench rows {path}: line {n}: expected each cell once, got {key} again (line "
+                             f"{seen[key]})")
+        seen[key] = n
     return rows
+
+
+IDENTITY = "experiment.json"
+
+
+class Identity(msgspec.Struct):
+    """``experiment.json``: the experiment whose rows a bench folder holds (:func:`cell_identities`)."""
+
+    name: str
+    file: str
+    cells: dict[str, str]
+
+
+def cell_identities(exp_path: str, exp: Experiment) -> dict[str, str]:
+    """``{cell key: identity}``: a hash of what the cell's row depends on: the protocol's settings (sizes,
+    samples, distance), the target's definition (a mesh file by its content, not its path), the method's
+    kind, settings for that target and budget, the views and the seed."""
+    protocol = {k: getattr(exp, k) for k in ("size", "heldout_size", "samples", "iou_resolution", "distance")}
+    targets = {}
+    for t in exp.targets:
+        d = asdict(t)
+        if t.mesh is not None:
+            path = Path(t.mesh) if Path(t.mesh).is_absolute() else exp.root / t.mesh
+            try:
+                d["mesh"] = hashlib.sha256(path.read_bytes()).hexdigest()
+            except OSError as e:
+                raise InputError(f"{exp_path}: target {t.name}: cannot read {path} ({e.strerror})") from None
+        targets[t.name] = d
+    out = {}
+    for c in exp.cells():
+        m = exp.method(c.method)
+        what = {"protocol": protocol, "target": targets[c.target], "method": m.method,
+                "settings": m.settings_for(exp.target(c.target)), "budget": m.budget_or(exp.budget),
+                "views": c.views, "seed": c.seed}
+        text = json.dumps(what, sort_keys=True, default=str)
+        out[c.key] = hashlib.sha256(text.encode()).hexdigest()[:16]
+    return out
+
+
+def check_same_experiment(out: Path, rows: list[dict], exp_path: str, exp: Experiment, ids: dict[str, str]) -> None:
+    """Refuse (:class:`InputError`, one line naming both experiments) to add to ``out`` rows of another
+    experiment than the one its ``experiment.json`` records (see the module docstring)."""
+    from ipm.io.runs import checked, read_json_file
+
+    if not rows:
+        return
+    path = out / IDENTITY
+    this = f"experiment {exp.name!r} ({exp_path})"
+    if path.is_file():
+        ident = checked(read_json_file(path, "bench experiment file"), Identity, f"bench experiment file {path}")
+        theirs = f"experiment {ident.name!r} ({ident.file})"
+        for r in rows:
+            k = r["key"]
+            if k not in ids or ident.cells.get(k) != ids[k]:
+                why = ("has no such cell" if k not in ids else
+                       "gives it other settings (protocol, target or method)" if k in ident.cells else
+                       f"has it, but {path.name} does not")
+                raise InputError(f"{out}: holds rows of {theirs}; expected {this}, which {why}: {k}; choose "
+                                 "another output folder")
+        return
+    stray = next((r["key"] for r in rows if r["key"] not in ids), None)
+    if stray is not None:
+        raise InputError(f"{out}: holds rows of another experiment than {this}: cell {stray} is not one of its "
+                         "cells; choose another output folder")
 
 
 def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 1, scheduler: str | None = None,
@@ -248,10 +357,14 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
     exp_path = str(Path(exp_path).resolve())
     exp: Experiment = load_experiment(exp_path)
     out = Path(out_dir)
+    if not resume and not dry_run and (out / ROWS).is_file():
+        n = sum(1 for line in (out / ROWS).read_bytes().split(b"\n") if line.strip())
+        if n:
+            raise InputError(f"{out / ROWS} already has {n} rows; pass --resume to continue it, "
+                             "or choose another output folder")
     done = read_rows(out)
-    if done and not resume and not dry_run:
-        raise InputError(f"{out / ROWS} already has {len(done)} rows; pass --resume to continue it, "
-                         "or choose another output folder")
+    ids = cell_identities(exp_path, exp)
+    check_same_experiment(out, done, exp_path, exp, ids)
     finished = {r["key"] for r in done}
     todo = [c for c in exp.cells() if c.key not in finished]
     if dry_run:
@@ -261,24 +374,37 @@ def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 
         raise InputError(f"output {out}: expected a folder, got a file")
     created = not out.exists()
     with _executor(workers, scheduler) as submit:  # a scheduler that cannot be reached fails here
-        from ipm.files import make_parent
+        from ipm.files import make_parent, refused, write_text
+        from ipm.io.runs import write_json
 
         make_parent(out / ROWS)
         rows = list(done)
         try:
             with _exclusive(out):
                 done = read_rows(out)  # again, now that no other bench writes here
+                check_same_experiment(out, done, exp_path, exp, ids)
                 todo = [c for c in exp.cells() if c.key not in {r["key"] for r in done}]
                 rows = list(done)
-                if done:  # drop a torn last line before appending
-                    (out / ROWS).write_text("".join(json.dumps(r) + "\n" for r in done))
-                with open(out / ROWS, "a", buffering=1) as f:
+                write_json(out / IDENTITY, {"name": exp.name, "file": exp_path, "cells": ids})
+                if done:  # drop a torn last line before appending (atomically: a full disk keeps the rows)
+                    write_text(out / ROWS, "".join(json.dumps(r) + "\n" for r in done))
+                try:
+                    f = open(out / ROWS, "a", buffering=1)
+                except OSError as e:
+                    raise refused(out / ROWS, e) from None
+                try:
                     for row in submit(exp_path, todo, str(out.resolve())):
-                        f.write(json.dumps(row) + "\n")
-                        f.flush()
+                        try:
+                            f.write(json.dumps(row) + "\n")
+                            f.flush()
+                        except OSError as e:
+                            raise refused(out / ROWS, e) from None
                         rows.append(row)
                         if progress is not None:
                             progress(row, len(rows) - len(done), len(todo))
+                finally:
+                    with suppress(OSError):  # a full disk: reported by the write
+                        f.close()
         except BaseException:
             if created and len(rows) == 0:  # nothing to resume: leave nothing behind
                 import shutil

@@ -20,7 +20,9 @@ def register(app: typer.Typer) -> None:
                                                     "(default results/<experiment name>)")] = None,
         workers: Annotated[int, typer.Option(help="local worker processes")] = 1,
         scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address (runs cells there)")] = None,
-        resume: Annotated[bool, typer.Option(help="skip cells already in rows.jsonl")] = False,
+        resume: Annotated[bool, typer.Option(help=(
+            "skip cells already in rows.jsonl (a folder of the same experiment: new cells may be added, "
+            "rows of other or changed cells are refused)"))] = False,
         dry_run: Annotated[bool, typer.Option("--dry-run", help="list the cells to run and stop")] = False,
         json_out: JsonOpt = False,
     ) -> None:

@@ -135,10 +135,8 @@ def register(app: typer.Typer) -> None:
             raise UsageError("expected -o RUN_DIR (or --resume RUN_DIR)")
         if resume is not None and output is not None and output != resume:
             raise UsageError("--resume RUN_DIR continues that folder; leave out -o or give the same folder")
-        if gen is None:
-            if resume is None:
-                raise UsageError("expected a generator: ipm fit GEN ... (see ipm list generators)")
-            gen = _run_generator(resume)
+        if gen is None and resume is None:  # --resume alone: the run's own generator (ipm.fitting.fit)
+            raise UsageError("expected a generator: ipm fit GEN ... (see ipm list generators)")
         given = [n for n, v in (("--masks", masks), ("--target-mesh", target_mesh), ("--image", image))
                  if v is not None]
         if resume is None and len(given) != 1:
@@ -197,8 +195,9 @@ def register(app: typer.Typer) -> None:
 
         def progress(ev):
             if not started:  # shown from the first evaluation: bad input fails before, with one line
-                bar.start()
-                started.append(True)
+                started.append(bar.console.is_terminal)  # elsewhere a bar leaves only an empty line
+                if started[0]:
+                    bar.start()
             iou = ev.last.get("iou")
             bar.update(task, completed=ev.count, total=ev.budget, phase=ev.phase[:18], loss=min(ev.best.loss, 9e9),
                        iou="-" if iou is None else f"{min(iou):.3f}")
@@ -219,7 +218,7 @@ def register(app: typer.Typer) -> None:
                          **{k: v for k, v in (("polish", polish), ("part_cost", part_cost), ("anchor", anchor))
                             if v is not None})
         finally:
-            if started:
+            if started and started[0]:
                 bar.stop()
         out = {"run": result.run_dir, "loss": result.loss, "evaluations": result.evaluations,
                "wall_time_s": round(result.wall_time_s, 2), **{k: v for k, v in result.scores.items()}}
@@ -299,10 +298,16 @@ FIT_BUDGET = 1500
 
 
 def _is_structure_run(run_dir: Path) -> bool:
+    """Whether ``run_dir``'s settings.json is a structure search's; a damaged one is refused later, by the
+    fit's resume, naming it."""
+    from ipm.errors import InputError
+    from ipm.io.runs import read_json_file
+
     try:
-        return "structure" in json.loads((run_dir / "settings.json").read_text())
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError, TypeError):
+        saved = read_json_file(run_dir / "settings.json", "run settings")
+    except (OSError, InputError):
         return False
+    return isinstance(saved, dict) and "structure" in saved
 
 
 def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: Path | None, output: Path | None,
@@ -347,8 +352,9 @@ def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: 
 
     def progress(used: int, total: int, info: dict) -> None:
         if not started:
-            bar.start()
-            started.append(True)
+            started.append(bar.console.is_terminal)  # elsewhere a bar leaves only an empty line
+            if started[0]:
+                bar.start()
         q = info.get("iou")
         bar.update(task, completed=used, total=total, round=info.get("round", 0),
                    iou="-" if q is None or q != q else f"{q:.3f}")
@@ -360,21 +366,8 @@ def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: 
             out = fit_structure(target_mesh=target_mesh, up=up, masks=masks, start=start, run_dir=output,
                                 progress=progress, device=dev, budget=budget, seed=seed)
     finally:
-        if started:
+        if started and started[0]:
             bar.stop()
     out.pop("tree", None)
     emit(out, json_out)
     sys.stdout.flush()
-
-
-def _run_generator(run_dir: Path) -> str:
-    """The generator a run folder was fitted with (its ``settings.json``), for ``--resume`` alone."""
-    settings = run_dir / "settings.json"
-    if not settings.is_file():
-        raise UsageError(f"--resume: {run_dir} is not a run folder (no settings.json)")
-    try:
-        saved = json.loads(settings.read_text())
-        return str(saved.get("source") or saved["generator"])
-    except (UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError, AttributeError):
-        raise UsageError(f"--resume: {settings} is not a run's settings file (expected JSON with a "
-                         "generator)") from None

@@ -90,12 +90,26 @@ class TargetFiles:
 
     @staticmethod
     def from_json(d: dict) -> TargetFiles:
+        """The files a run's ``settings.json`` records (:meth:`to_json`), checked against the fields' types:
+        :class:`InputError` "field: expected ..., got ..." (keys this version does not know are ignored)."""
+        import msgspec
+
+        from ipm.settings_check import allowed, error_path, field_types
+
+        if not isinstance(d, dict):
+            raise InputError(f"expected an object of the target's files, got {type(d).__name__}")
         known = {f.name for f in fields(TargetFiles)}
         vals = {k: v for k, v in d.items() if k in known}
-        if vals.get("box") is not None:
-            vals["box"] = tuple(vals["box"])
         vals.setdefault("ground", False)  # runs recorded before the ground plane was measured replay without it
-        return TargetFiles(**vals)
+        try:
+            return msgspec.convert(vals, TargetFiles)
+        except msgspec.ValidationError as e:
+            path = error_path(str(e))
+            types = field_types(TargetFiles)
+            if path and path[0] in types:
+                what = "4 integers" if path[0] == "box" else allowed(types[path[0]])
+                raise InputError(f"{path[0]}: expected {what}, got {vals.get(path[0])!r:.60}") from None
+            raise InputError(str(e).split(" - at ")[0]) from None
 
 
 @dataclass(frozen=True)

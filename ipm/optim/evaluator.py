@@ -10,7 +10,15 @@ same points in the same order, so the evaluator answers from the records while t
 that the point matches) and then goes on live. The resumed run therefore ends exactly where an
 uninterrupted run would, whatever the search strategy (nlopt's internal state included). A point that
 differs from its record raises :class:`ReplayMismatch` (an :class:`~ipm.errors.InputError`: the run folder
-does not belong to these settings or this code). Every record's ``t`` is the run's elapsed time in seconds,
+does not belong to these settings or this code).
+
+The records' losses and gradients are taken on trust, except for a few that the replay evaluates again
+(:func:`checked_records`): the last one replayed (its gradient and loss steer the first live step) and,
+in every phase, the one with the lowest loss (the point that phase would keep as its best). A
+re-evaluation whose loss or gradient differs from the record's (beyond :data:`LOSS_RTOL`,
+:data:`GRAD_RTOL`) raises :class:`ReplayMismatch` naming the evaluation: an edited trajectory, or target
+files that changed since the run was recorded. A record whose loss was raised, not lowered, in the middle
+of a phase is not caught. Every record's ``t`` is the run's elapsed time in seconds,
 counted over all its runs (the replayed records' time included), so :attr:`Evaluator.elapsed_s` is the
 time of the whole run after any number of resumes.
 """
@@ -40,7 +48,30 @@ class BudgetExhausted(Exception):
 
 
 class ReplayMismatch(InputError):
-    """A resumed run asked for a different point than the recorded run did."""
+    """A resumed run asked for a different point than the recorded run did, or a recorded loss or gradient
+    differs from what the point evaluates to again."""
+
+
+# How far a re-evaluated record may be from its recorded loss (relative) and gradient (relative to its
+# largest component). With the same code and one thread the replay is bit-identical, also with two
+# threads (measured: dishes, memetic, 60 evaluations at 64 px); the eager soft-silhouette kernel, which a
+# machine without a C compiler falls back to, differs from the native one by up to 3e-6 in the loss and
+# 1.5e-5 in the gradient, and a run may be resumed there.
+LOSS_RTOL = 1e-4
+GRAD_RTOL = 1e-3
+
+
+def checked_records(replay: Sequence[dict]) -> set[int]:
+    """Indices of the replayed records that the replay evaluates again: the last one, and per phase the one
+    with the lowest loss (the first of equals)."""
+    if not replay:
+        return set()
+    lowest: dict[str, int] = {}
+    for i, r in enumerate(replay):
+        phase = str(r.get("phase", ""))
+        if phase not in lowest or r["loss"] < replay[lowest[phase]]["loss"]:
+            lowest[phase] = i
+    return {len(replay) - 1, *lowest.values()}
 
 
 @dataclass
@@ -63,6 +94,7 @@ class Evaluator:
         self.budget = int(budget)
         self.sink = sink
         self.replay = list(replay)
+        self.checked = checked_records(self.replay)
         self.progress = progress
         self.count = 0
         # the count at which the running phase stops (running(until=...)); the budget outside phases
@@ -126,22 +158,12 @@ class Evaluator:
             loss = float(rec["loss"])
             g = torch.tensor(rec["grad"], dtype=torch.float64) if rec.get("grad") is not None else None
             extras = {k: rec[k] for k in rec if k not in ("i", "x", "discrete", "loss", "grad", "phase", "t")}
+            if self.count in self.checked:
+                self._check(rec, x, disc, grad)
         else:
             if self.count % threads.RECHECK == 0:
                 threads.adapt()  # fewer torch threads while other processes take the cores
-            if self.mode is None:
-                loss_t, g_t, extras = self.objective(x, disc, grad)
-            else:
-                loss_t, g_t, extras = self.objective(x, disc, grad, self.mode)
-            loss = float(loss_t.detach())
-            if not math.isfinite(loss):
-                loss = 1e6  # a degenerate shape: steer away instead of crashing the search
-                g_t = torch.zeros_like(x) if grad else None
-            g = None
-            if grad:
-                gl = [float(v) for v in g_t.detach().to(torch.float64).tolist()]
-                gl = [v if math.isfinite(v) else 0.0 for v in gl]
-                g = torch.tensor(gl, dtype=torch.float64)
+            loss, g, extras = self._evaluate(x, disc, grad)
             rec = {"i": self.count, "phase": self.phase, "loss": loss, "x": xs, "discrete": disc,
                    "grad": None if g is None else [float(v) for v in g.tolist()],
                    "t": round(self.elapsed_s, 4), **extras}
@@ -159,6 +181,42 @@ class Evaluator:
         if self.progress is not None:
             self.progress(self)
         return loss, g
+
+    def _evaluate(self, x: torch.Tensor, disc: dict, grad: bool) -> tuple[float, torch.Tensor | None, dict]:
+        """The objective at ``x``: the loss (1e6 where not finite), the gradient (non-finite parts 0), extras."""
+        if self.mode is None:
+            loss_t, g_t, extras = self.objective(x, disc, grad)
+        else:
+            loss_t, g_t, extras = self.objective(x, disc, grad, self.mode)
+        loss = float(loss_t.detach())
+        if not math.isfinite(loss):
+            loss = 1e6  # a degenerate shape: steer away instead of crashing the search
+            g_t = torch.zeros_like(x) if grad else None
+        g = None
+        if grad:
+            gl = [float(v) for v in g_t.detach().to(torch.float64).tolist()]
+            gl = [v if math.isfinite(v) else 0.0 for v in gl]
+            g = torch.tensor(gl, dtype=torch.float64)
+        return loss, g, extras
+
+    def _check(self, rec: dict, x: torch.Tensor, disc: dict, grad: bool) -> None:
+        """Evaluate a replayed record again; :class:`ReplayMismatch` where its loss or gradient differs."""
+        loss, g, _ = self._evaluate(x, disc, grad)
+        want = float(rec["loss"])
+        why = None
+        if abs(loss - want) > LOSS_RTOL * max(abs(loss), abs(want)):
+            why = f"a loss of {loss!r} where the record has {want!r}"
+        elif g is not None:
+            rg = torch.tensor(rec["grad"], dtype=torch.float64)
+            scale = max(float(rg.abs().max()), float(g.abs().max())) if len(rg) else 0.0
+            diff = (g - rg).abs()
+            if len(rg) and float(diff.max()) > GRAD_RTOL * scale:
+                j = int(diff.argmax())
+                why = f"a gradient with grad[{j}] = {float(g[j])!r} where the record has {float(rg[j])!r}"
+        if why is not None:
+            raise ReplayMismatch(f"resume: evaluation {self.count}: evaluated again, the recorded point gives {why} "
+                                 "(an edited trajectory, or target files, settings or code that changed since?); "
+                                 "start a new run instead")
 
     def forget_best(self) -> None:
         """Start the best-point records afresh (the objective changed, e.g. a finer blur: losses from

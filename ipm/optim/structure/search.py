@@ -13,7 +13,9 @@ is spent; the best tree is then refined by ``polish`` steps and kept if its scor
 Deterministic: no random choice is made after the target's samples are drawn; one thread of torch
 gives the same floats. Resumable: after every round the state (beam, best, evaluations, elapsed time,
 records written) goes to ``checkpoint``; :func:`search` given that state continues with the next round,
-and ends where an uninterrupted search would.
+and ends where an uninterrupted search would. A state read back from a file is checked first:
+:class:`State` is its schema, and :func:`verify_state` scores its trees again and refuses a state whose
+recorded scores they do not reproduce (an edited or another target's checkpoint).
 """
 
 from __future__ import annotations
@@ -24,8 +26,11 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Annotated, Any, Literal
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from ipm.errors import InputError
 from ipm.optim.structure import candidate as C
@@ -79,6 +84,66 @@ class SearchResult:
     @property
     def signature(self) -> tuple[tuple[str, ...], tuple[str, ...]]:
         return signature(self.tree)
+
+
+class ScoredState(msgspec.Struct):
+    """A scored tree in a checkpoint (:meth:`Scored.to_json`); ``loss`` is NaN for a tree not refined."""
+
+    tree: dict[str, Any]
+    score: float
+    iou: Annotated[float, Meta(ge=0.0, le=1.0)]
+    nodes: Annotated[int, Meta(ge=1)]
+    loss: float
+    label: str
+
+
+class State(msgspec.Struct):
+    """The schema of a search's checkpoint (what ``checkpoint`` is given after every round): the round
+    finished, the beam and the best tree, rounds without improvement, evaluations used, seconds elapsed,
+    records written, and why the search stopped (None: not yet)."""
+
+    round: Annotated[int, Meta(ge=0)]
+    beam: Annotated[list[ScoredState], Meta(min_length=1)]
+    best: ScoredState
+    stale: Annotated[int, Meta(ge=0)]
+    used: Annotated[int, Meta(ge=0)]
+    elapsed: Annotated[float, Meta(ge=0.0)]
+    records: Annotated[int, Meta(ge=0)]
+    stopped: Literal["rounds", "budget", "converged"] | None = None
+
+
+SCORE_RTOL = 1e-6   # re-scored trees: the score is a count ratio plus a cost per node (bit-identical in tests)
+
+
+def verify_state(state: dict, samples: Samples, settings: StructureSettings) -> None:
+    """Refuse (:class:`~ipm.errors.InputError`, "beam[1]: ...") a checkpoint ``state`` that does not fit
+    ``settings`` or whose trees, scored again on ``samples``, do not give their recorded score and IoU.
+    ``state`` is assumed to have :class:`State`'s schema already."""
+    from ipm.sdf.tree import tree_from_json
+
+    if state["used"] > settings.budget:
+        raise InputError(f"used: expected at most the budget's {settings.budget} evaluations, got {state['used']}")
+    if state["round"] > settings.rounds:
+        raise InputError(f"round: expected at most the settings' {settings.rounds} rounds, got {state['round']}")
+    entries = [(f"beam[{i}]", b) for i, b in enumerate(state["beam"])] + [("best", state["best"])]
+    for where, entry in entries:
+        try:
+            tree_from_json({"tree": entry["tree"]})
+        except InputError as e:
+            raise InputError(f"{where}.tree: expected a tree, got one that does not load ({e})") from None
+        for name in ("score", "iou"):
+            if not math.isfinite(entry[name]):
+                raise InputError(f"{where}.{name}: expected a finite number, got {entry[name]!r}")
+        if entry["nodes"] != count_nodes(entry["tree"]):
+            raise InputError(f"{where}.nodes: expected the tree's {count_nodes(entry['tree'])} nodes, got "
+                             f"{entry['nodes']!r}")
+    for where, entry in entries:
+        sc, q, _ = C.score(entry["tree"], samples, settings.node_cost)
+        for name, got in (("score", sc), ("iou", q)):
+            want = float(entry[name])
+            if abs(got - want) > SCORE_RTOL * max(abs(got), abs(want), 1.0):
+                raise InputError(f"{where}.{name}: expected what the tree scores, {got!r}, got {want!r} (an edited "
+                                 "checkpoint, or another target or settings?)")
 
 
 def starts(samples: Samples, kinds) -> list[Proposal]:
@@ -232,4 +297,4 @@ def search(samples: Samples, settings: StructureSettings = StructureSettings(), 
                         beam)
 
 
-__all__ = ["IMPROVEMENT", "Scored", "SearchResult", "search", "starts"]
+__all__ = ["IMPROVEMENT", "Scored", "SearchResult", "State", "search", "starts", "verify_state"]
