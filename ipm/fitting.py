@@ -329,9 +329,11 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
     file to begin from. ``settings``: :class:`~ipm.optim.structure.StructureSettings` fields.
 
     The run folder holds ``settings.json``, ``checkpoint.json`` (after every round), ``structures.jsonl``
-    (every tree tried: its edit, structure, nodes, IoU, score, evaluations, the tree), ``tree.json`` (the
-    recovered tree, nested, which ``ipm generate`` loads), ``mesh.obj`` (that tree meshed as ``ipm
-    generate`` does) and ``result.json``. ``resume=True`` continues after the last finished round and ends
+    (every tree tried: its edit, structure, nodes, IoU, score, evaluations, the tree, in the search's frame),
+    ``tree.json`` (the recovered tree, nested, which ``ipm generate`` loads, placed in the target's own frame:
+    for a mesh target the search's unit-sphere tree under an outer ``place`` node, :func:`framed`),
+    ``mesh.obj`` (that tree meshed as ``ipm generate`` does, lying on the target) and ``result.json``.
+    ``resume=True`` continues after the last finished round and ends
     where an uninterrupted run would; it checks ``settings.json`` and ``checkpoint.json`` against their
     schema (:class:`~ipm.io.runs.StructureRunFile`, :class:`~ipm.optim.structure.search.State`) and scores
     the checkpoint's trees again (:func:`~ipm.optim.structure.search.verify_state`): a damaged or edited
@@ -439,6 +441,9 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
         finally:
             if sink is not None:
                 sink.close()
+        # the tree in the target's own frame: the search ran in DESIGN.md's unit sphere (a mesh target),
+        # and an outer place node takes it back, so that tree.json and mesh.obj lie on the target
+        placed = res.tree if frame is None else framed(res.tree, frame)
         out = {"structure": structure(res.tree), "nodes": count_nodes(res.tree),
                "primitives": primitive_counts(res.tree), "adds": list(signature(res.tree)[0]),
                "cuts": list(signature(res.tree)[1]), "fit_iou": res.iou,
@@ -451,11 +456,20 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
 
             out["run"] = str(run_dir)
             with final_files(run_dir) as staged:  # the final files all at once, or none of them
-                write_json(staged / "tree.json", {"tree": res.tree})
+                write_json(staged / "tree.json", {"tree": placed})
                 gen = get_generator(str(staged / "tree.json"))
                 values = gen.spec.defaults()
                 export_mesh(gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION), staged / "mesh.obj",
                             gen.metadata(values), sidecar=False)
                 write_json(staged / RESULT, out)
-    out["tree"] = res.tree
+    out["tree"] = placed
     return out
+
+
+def framed(tree: dict, frame: dict) -> dict:
+    """The nested tree ``tree`` of the unit-sphere frame placed back in a target's frame ``{"center", "scale"}``
+    (:func:`ipm.metrics.unit_sphere_frame`: unit = (target - center) * scale): an outer ``place`` node (its unit
+    1 / scale, moved to the center; exact, so distances stay true; its values held by fits)."""
+    cx, cy, cz = (float(c) for c in frame["center"])
+    return {"node": "place", "params": {"x": cx, "y": cy, "z": cz, "unit": 1.0 / float(frame["scale"])},
+            "children": [tree]}

@@ -53,6 +53,9 @@ class Param:
     # as the camera's elevation): single-view fits without depth charge FitSettings.anchor per unit of its normalized
     # distance from the starting value, so it leaves the start only where the view pays for it
     anchored: bool = False
+    # where a shape is placed, not what it is (the outer frame of a tree written in a target's own frame:
+    # ipm.fitting.framed): fits hold it at its value unless FitSettings.free names it
+    held: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("float", "int", "bool"):
@@ -115,6 +118,8 @@ class Param:
             out["adds"] = self.adds
         if self.anchored:
             out["anchored"] = True
+        if self.held:
+            out["held"] = True
         return out
 
 

@@ -161,15 +161,25 @@ def _ipm(*args, cwd=None):
 def test_cli_search_writes_a_tree_that_generate_reproduces(tmp_path):
     from ipm.io.export import export_mesh
     from ipm.io.meshes import load_mesh
+    from ipm.types import TriMesh
 
     target = tmp_path / "truth.obj"
-    export_mesh(truth_mesh(48), target, sidecar=False)
+    truth = truth_mesh(48)
+    # away from the origin and at another scale: the written tree and mesh must lie on the target (issue #33)
+    placed = TriMesh(truth.verts * 3.0 + torch.tensor([5.0, 2.0, -1.0], dtype=truth.verts.dtype), truth.faces)
+    export_mesh(placed, target, sidecar=False)
     run = tmp_path / "run"
     p = _ipm("fit", "--structure", "search", "--target-mesh", str(target), "-o", str(run), "--budget", "1500",
              "--json")
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
-    assert out["evaluations"] <= 1500 and out["nodes"] == count_nodes(json.loads((run / "tree.json").read_text())["tree"])
+    tree = json.loads((run / "tree.json").read_text())["tree"]
+    assert tree["node"] == "place"  # the target's frame, outside
+    assert out["evaluations"] <= 1500 and out["nodes"] == count_nodes(tree["children"][0])
+    got, want = load_mesh(run / "mesh.obj", normalize=False).verts.double(), placed.verts.double()
+    size = float((want.amax(0) - want.amin(0)).max())
+    assert torch.allclose(got.amin(0), want.amin(0), atol=0.08 * size)
+    assert torch.allclose(got.amax(0), want.amax(0), atol=0.08 * size)
     lines = (run / "structures.jsonl").read_text().splitlines()
     assert lines and all("structure" in json.loads(x) for x in lines)
     again = tmp_path / "again.obj"
@@ -258,3 +268,23 @@ def test_the_tables_random_trees_are_deterministic_and_every_part_matters():
     hidden = {"node": "union", "children": [part("part1", "box", [0, 0, 0], [1, 1, 1]),
                                              part("part2", "sphere", [0, 0, 0], [0.2, 0.2, 0.2])]}
     assert not every_part_matters(hidden, pts)
+
+
+def test_a_placed_tree_lies_on_its_target_and_fits_hold_its_frame():
+    """framed() puts a unit-sphere tree back in a target's frame exactly (distances scaled with it), and a fit of
+    the placed tree searches its shape, not its frame (Param.held)."""
+    from ipm.fitting import framed
+    from ipm.generators.sdftree import SdfTreeGenerator
+    from ipm.optim.fit import FitSettings, MeshTarget, Problem
+    from ipm.sdf.tree import tree_from_json
+
+    placed = framed({"node": "sphere", "params": {"radius": 0.5}}, {"center": [5.0, 2.0, -1.0], "scale": 0.25})
+    gen = SdfTreeGenerator(tree_from_json({"tree": placed}))
+    pts = torch.tensor([[5.0, 2.0, -1.0], [7.0, 2.0, -1.0], [5.0, 6.0, -1.0]], dtype=torch.float64)
+    d = gen.tree.sdf(gen.tree.theta(), pts)
+    assert torch.allclose(d, torch.tensor([-2.0, 0.0, 2.0], dtype=torch.float64))  # radius 0.5 / 0.25 = 2
+    held = {p.name for p in gen.spec.continuous if p.held}
+    assert len(held) == 4
+    prob = Problem(gen, MeshTarget(truth_mesh(16)), FitSettings(budget=2))
+    free = {gen.spec.continuous[i].name for i in prob.free}
+    assert free and not free & held

@@ -61,7 +61,9 @@ class Problem:
         self.device = target.masks.device if isinstance(target, MaskTarget) else target.mesh.verts.device
         self.start = gen.values(settings.preset, settings.fix)
         cont = [p.name for p in gen.spec.continuous]
-        free = settings.free if settings.free is not None else [n for n in cont if n not in settings.fix]
+        held = {p.name for p in gen.spec.continuous if p.held}
+        free = (settings.free if settings.free is not None
+                else [n for n in cont if n not in settings.fix and n not in held])
         unknown = [n for n in free if n not in cont]
         if unknown:
             raise InputError(f"free parameters: expected continuous parameters ({', '.join(cont)}), got "

@@ -4,10 +4,10 @@ vector."""
 from __future__ import annotations
 
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from ipm.errors import InputError
-from ipm.params import Param, ParamSpec
+from ipm.params import ParamSpec
 from ipm.tree.node import TreeNode
 
 MAX_DEPTH = 64
@@ -57,7 +57,7 @@ def flat_spec(visits: Sequence[Visit]) -> tuple[ParamSpec, list[str], list[int]]
         labels.append(label)
         offsets.append(off)
         for p, val in zip(v.node.param_defs(), v.node.values):
-            params.append(Param(f"{label}.{p.name}", val, p.lo, p.hi, p.kind, p.doc))
+            params.append(replace(p, name=f"{label}.{p.name}", default=val))
             off += p.continuous
     if len(set(labels)) != len(labels):
         dup = sorted({x for x in labels if labels.count(x) > 1})

@@ -11,6 +11,7 @@ Translate, scale, round and shell are defined once and registered for 3D (``tran
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -79,6 +80,21 @@ def Translate(child, p, *t):
 def Scale(child, p, s):
     """Uniform scale by ``factor``: ``f(p / s) * s``. Exact."""
     return child(p / s) * s
+
+
+# a placement's range: any frame a target's file may use (it is held by fits: Param.held)
+PLACE = 1e9
+
+
+@operation("place", lambda dim: tuple(replace(P(a, 0.0, -PLACE, PLACE), held=True) for a in "xyz"[:dim])
+           + (replace(P("unit", 1.0, 1.0 / PLACE, PLACE), held=True),), dims=(3, 2),
+           box=lambda b, *v: (b[0] * v[-1] + np.array(v[:-1]), b[1] * v[-1] + np.array(v[:-1])))
+def Place(child, p, *v):
+    """Place a child made in a unit frame into a target's own frame: scaled by ``unit`` (the length of its unit
+    there), then moved by ``(x, y, z)`` (2D: ``(x, y)``): ``f((p - t) / unit) * unit``. Exact. Its values are a
+    frame, not a shape: fits hold them (ipm fit --structure search writes one around a tree fitted to a mesh)."""
+    t, s = torch.stack(v[:-1]), v[-1]
+    return child((p - t) / s) * s
 
 
 @operation("round", P("radius", 0.05, 0.0, 10.0), dims=(3, 2), box=_boxes.grow)
