@@ -157,13 +157,15 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
         scores = hard_scores(prob, best)
         if photo is not None:
             scores.update(photo_scores(prob, best, photo))
+        mesh = prob.mesh_world(best["x"].to(torch.float64), best["discrete"]).detach()
         if run_dir is not None:
             with final_files(run_dir) as staged:  # the final files all at once, or none of them
-                out = save_run(staged, prob, best, result, cfg, scores, photo, trajectory=run_dir / TRAJECTORY)
+                out = save_run(staged, prob, best, result, cfg, scores, photo, trajectory=run_dir / TRAJECTORY,
+                               mesh=mesh)
             scores, pose = out["scores"], out["pose"]
         else:
-            pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True)
-    return replace(result, scores=scores, pose=pose, run_dir=None if run_dir is None else str(run_dir))
+            pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True, mesh=mesh)
+    return replace(result, scores=scores, pose=pose, run_dir=None if run_dir is None else str(run_dir), shape=mesh)
 
 
 def _generator(generator, library: list[str] | None):
@@ -234,10 +236,10 @@ def _parts_px(mesh, rast) -> dict:
 
 
 def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
-             scores: dict, photo=None, *, trajectory: Path | None = None) -> dict:
+             scores: dict, photo=None, *, trajectory: Path | None = None, mesh=None) -> dict:
     """Write params.json, mesh.glb, mesh.obj, result.json and pictures into ``run_dir`` (with a photo
     target, ``overlay_photo.png``: the fit's outline over the photo); the loss plot reads ``trajectory``
-    (default: the one in ``run_dir``)."""
+    (default: the one in ``run_dir``); ``mesh``: the posed mesh of ``best`` if already made."""
     import numpy as np
 
     import ipm
@@ -247,7 +249,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
 
     run_dir = Path(run_dir)
     x = best["x"].to(torch.float64)
-    mesh = prob.mesh_world(x, best["discrete"]).detach()
+    mesh = prob.mesh_world(x, best["discrete"]).detach() if mesh is None else mesh
     pose = prob.pose_json(x, best["discrete"], symmetry=True, mesh=mesh)
     meta = {"generator": prob.gen.name, "params": result.params, "pose": pose}
     write_json(run_dir / "params.json", meta)
@@ -323,7 +325,7 @@ STRUCTURE_RESOLUTION = 128   # mesh.obj: what `ipm generate tree.json` meshes at
 @one_by_default
 def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks: str | Path | None = None,
                   start: str | Path | None = None, run_dir: str | Path | None = None, resume: bool = False,
-                  progress: Callable | None = None, device=None, **settings) -> dict:
+                  progress: Callable | None = None, device=None, **settings) -> FitResult:
     """Recover a tree's structure and parameters (:mod:`ipm.optim.structure`) from a mesh (normalized to
     DESIGN.md's unit sphere, as ``ipm fit --target-mesh``) or a mask set of K >= 2 views; ``start``: a tree
     file to begin from. ``settings``: :class:`~ipm.optim.structure.StructureSettings` fields.
@@ -339,7 +341,9 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
     the checkpoint's trees again (:func:`~ipm.optim.structure.search.verify_state`): a damaged or edited
     file is an :class:`~ipm.errors.InputError` naming it and the field. Paths are kept absolute (a run
     resumes from any working folder); a first run that fails on bad input leaves no run folder behind, and
-    the final files are written all together or not at all. Returns ``result.json``'s content."""
+    the final files are written all together or not at all. Returns a :class:`~ipm.types.FitResult` of kind
+    "structure": its ``tree`` (placed), ``scores`` (``result.json``'s: structure, nodes, primitives, fit_iou,
+    score, rounds, frame, ...) and :meth:`~ipm.types.FitResult.mesh`."""
     from ipm.files import refused, write_text
     from ipm.io.runs import (
         RESULT,
@@ -450,20 +454,24 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
                "fit_iou_of": "occupancy on the sample grid" if masks is None else "silhouettes at the mask rays",
                "score": res.score, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
                "rounds": res.rounds, "stopped": res.stopped, "frame": frame}
+        from ipm.generators.sdftree import SdfTreeGenerator
+        from ipm.sdf.tree import tree_from_json
+
+        gen = SdfTreeGenerator(tree_from_json({"tree": placed}))
+        values = gen.spec.defaults()
+        shape = gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION)
         if run_dir is not None:
-            from ipm.generators import get_generator
             from ipm.io.export import export_mesh
 
             out["run"] = str(run_dir)
             with final_files(run_dir) as staged:  # the final files all at once, or none of them
                 write_json(staged / "tree.json", {"tree": placed})
-                gen = get_generator(str(staged / "tree.json"))
-                values = gen.spec.defaults()
-                export_mesh(gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION), staged / "mesh.obj",
-                            gen.metadata(values), sidecar=False)
+                export_mesh(shape, staged / "mesh.obj", gen.metadata(values), sidecar=False)
                 write_json(staged / RESULT, out)
-    out["tree"] = placed
-    return out
+    scores = {k: v for k, v in out.items() if k not in ("evaluations", "wall_time_s", "run")}
+    return FitResult(generator=gen.name, params=values, loss=float(res.score), evaluations=res.evaluations,
+                     wall_time_s=res.wall_time_s, scores=scores, run_dir=out.get("run"), kind="structure",
+                     tree=placed, shape=shape)
 
 
 def framed(tree: dict, frame: dict) -> dict:
@@ -473,3 +481,79 @@ def framed(tree: dict, frame: dict) -> dict:
     cx, cy, cz = (float(c) for c in frame["center"])
     return {"node": "place", "params": {"x": cx, "y": cy, "z": cz, "unit": 1.0 / float(frame["scale"])},
             "children": [tree]}
+
+
+def fit_shape(tree, image, *, run_dir: str | Path | None = None, profile: bool = False, extrude: float | None = None,
+              steps: int = 400, loss: str = "iou", transport: dict | None = None, seed: int = 0) -> FitResult:
+    """A 2D tree (``tree``: a file or :class:`~ipm.sdf.tree.Tree` with a 2D root) fitted to a binary ``image``
+    (a file or an (H, W) array) (:func:`ipm.optim.fit2d.fit_2d`): as the shape itself in a similarity pose,
+    or with ``profile`` as the profile of a body of revolution seen from the side; a profile is lifted by
+    revolve and a shape by ``extrude`` (a height) into a 3D tree.
+
+    The run folder (``run_dir``, written all at once) holds ``tree.json`` (the fitted 2D tree), ``result.json``,
+    ``overlay.png`` and, for a lifted fit, ``lifted.json`` (the 3D tree ``ipm generate`` loads) and ``mesh.obj``.
+    Returns a :class:`~ipm.types.FitResult` of kind "2d": its ``tree`` (the lifted tree where lifted, else the
+    2D one), ``scores`` (mode, pose, iou, steps, seconds) and, where lifted, :meth:`~ipm.types.FitResult.mesh`."""
+    import numpy as np
+
+    from ipm.files import staged_directory, write_text
+    from ipm.losses import TransportSettings
+    from ipm.optim.fit2d import Fit2DSettings, fit_2d, lifted
+    from ipm.sdf.tree import Tree, load_tree, tree_from_json, tree_to_json
+
+    if profile and extrude is not None:
+        raise InputError("profile and extrude: a profile is lifted by revolve; give one of them")
+    if extrude is not None and not (0 < extrude < float("inf")):
+        raise InputError(f"extrude: expected a positive height, got {extrude}")
+    run_dir = Path(run_dir) if run_dir is not None else None
+    if run_dir is not None and run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
+        raise InputError(f"run folder {run_dir} exists and is not an empty folder; choose a new folder")
+    tree = tree if isinstance(tree, Tree) else load_tree(tree, dim=None)
+    if tree.dim != 2:
+        raise InputError(f"2D fit: expected a tree with a 2D root, got a 3D {tree.root.type_name}; 3D trees fit "
+                         "to masks, a photo or a mesh")
+    if isinstance(image, (str, Path)):
+        from ipm.io.masks import read_mask
+
+        name, mask = str(image), read_mask(image)
+    else:
+        name, mask = "image", np.asarray(image)
+    torch.manual_seed(seed)
+    try:
+        settings = Fit2DSettings(mode="profile" if profile else "shape", steps=steps, loss=loss,
+                                 transport=TransportSettings(**(transport or {}))).check()
+    except TypeError as e:
+        raise InputError(f"2D fit settings: {e}") from None
+    try:
+        res = fit_2d(tree, mask, settings)
+    except InputError as e:
+        raise InputError(f"2D fit of {name}: {e}") from None
+    out = {"run": None if run_dir is None else str(run_dir), **res.to_json()}
+    out["settings"] = {"mode": settings.mode, "steps": settings.steps, "loss": settings.loss, "seed": seed}
+    lift = lifted(res, extrude) if profile or extrude is not None else None
+    shape = None
+    if lift is not None:
+        from ipm.generators.sdftree import SdfTreeGenerator
+
+        gen3 = SdfTreeGenerator(tree_from_json(lift), "sdftree", "lifted.json")
+        shape = gen3.to_mesh(gen3.spec.defaults(), resolution=128)
+    if run_dir is not None:
+        with staged_directory(run_dir) as tmp:
+            write_text(tmp / "tree.json", json.dumps(tree_to_json(res.tree), indent=1) + "\n")
+            from ipm.viz.overlay import overlay
+
+            overlay(mask, res.mask, title=f"2D fit ({res.mode}): target red, fit green").save(tmp / "overlay.png",
+                                                                                            "PNG")
+            files = {"tree": "tree.json", "overlay": "overlay.png"}
+            if lift is not None:
+                from ipm.io.export import export_mesh
+
+                write_text(tmp / "lifted.json", json.dumps(lift, indent=1) + "\n")
+                export_mesh(shape, tmp / "mesh.obj", sidecar=False)
+                files.update(lifted="lifted.json", mesh="mesh.obj")
+            out["files"] = files
+            write_text(tmp / "result.json", json.dumps(out, indent=1) + "\n")
+    scores = {k: out[k] for k in ("mode", "pose", "iou", "steps", "seconds")}
+    return FitResult(generator="sdftree", params=res.tree.values(), loss=float(res.loss), evaluations=res.steps,
+                     wall_time_s=res.seconds, scores=scores, run_dir=out["run"], kind="2d",
+                     tree=(lift or tree_to_json(res.tree))["tree"], shape=shape)

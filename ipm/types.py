@@ -167,7 +167,13 @@ class Camera:
 
 @dataclass(frozen=True)
 class FitResult:
-    """What a fit returns: the best parameters and how it got there."""
+    """What every fit returns (``ipm.fit``, ``ipm.fitting.fit_structure``, ``ipm.fitting.fit_shape``): the
+    generator and its best parameters, the scores, how it got there, and the result as a mesh in the target's
+    own frame (:meth:`mesh`).
+
+    kind: "parametric" (a generator's parameters), "structure" (a tree searched: ``tree``) or "2d" (a 2D tree
+    fitted to an image: ``tree``, lifted to 3D where asked); tree: the fitted tree (nested JSON, as its run
+    folder's ``tree.json``) for the two tree kinds."""
 
     generator: str
     params: dict
@@ -182,3 +188,13 @@ class FitResult:
     # the pose as JSON with the turns that map the fitted shape onto itself and the equivalent poses
     # (ipm.optim.problem.Problem.pose_json with symmetry)
     pose: dict = field(default_factory=dict)
+    kind: str = "parametric"
+    tree: dict | None = None
+    # the result as a mesh in the target's own frame (None where there is none: an unlifted 2D fit)
+    shape: TriMesh | None = field(default=None, repr=False, compare=False)
+
+    def mesh(self) -> TriMesh:
+        """The fitted shape as a mesh, posed in the target's own frame (as the run folder's ``mesh.obj``)."""
+        if self.shape is None:
+            raise ValueError(f"a {self.kind} fit without a 3D shape has no mesh")
+        return self.shape

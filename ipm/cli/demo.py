@@ -271,11 +271,12 @@ def structure_showcase(out: Path) -> dict:
     res = fit_structure(target_mesh=ARMCHAIR, up="y", run_dir=run, budget=STRUCTURE_BUDGET, seed=0)
     cams = heldout_views(256)
     scan = load_mesh(ARMCHAIR, up="y")  # in the protocol's unit sphere
-    pred = load_mesh(run / "mesh.obj", normalize=False)  # on the scan, in its own frame: into the same sphere
-    center, scale = torch.tensor(res["frame"]["center"], dtype=pred.verts.dtype), res["frame"]["scale"]
-    pred = type(pred)((pred.verts - center) * scale, pred.faces)
+    pred = res.mesh()  # on the scan, in its own frame: into the same sphere
+    frame = res.scores["frame"]
+    center, scale = torch.tensor(frame["center"], dtype=pred.verts.dtype), frame["scale"]
+    pred = type(pred)((pred.verts.to(center.dtype) - center) * scale, pred.faces)
     iou = float(np.mean([mask_iou(a, b) for a, b in zip(render_masks(pred, cams), render_masks(scan, cams))]))
-    return {**res, "heldout_iou": iou}
+    return {**res.scores, "evaluations": res.evaluations, "wall_time_s": res.wall_time_s, "heldout_iou": iou}
 
 
 def main() -> None:

@@ -4,7 +4,6 @@
 
 from __future__ import annotations
 
-import json
 import sys
 from pathlib import Path
 from typing import Annotated
@@ -233,65 +232,27 @@ def register(app: typer.Typer) -> None:
 
 def _fit_2d(tree_file: str, image: Path, output: Path, *, profile: bool, extrude: float | None, steps: int,
             loss: str, transport: dict, seed: int, json_out: bool) -> None:
-    """``ipm fit TREE.json --shape IMAGE [--profile | --extrude H] -o RUN_DIR``: a 2D tree fitted to a binary
-    image (ipm.optim.fit2d), written atomically: tree.json (the fitted 2D tree), result.json, overlay.png,
-    and for a lifted fit lifted.json and mesh.obj."""
-    import torch
-
+    """``ipm fit TREE.json --shape IMAGE [--profile | --extrude H] -o RUN_DIR``: :func:`ipm.fitting.fit_shape`."""
     from ipm.errors import InputError
-    from ipm.files import staged_directory, write_text
-    from ipm.io.masks import read_mask
-    from ipm.losses import TransportSettings
-    from ipm.optim.fit2d import Fit2DSettings, fit_2d, lifted
-    from ipm.sdf.tree import load_tree, tree_from_json, tree_to_json
+    from ipm.fitting import fit_shape
 
     if not tree_file.endswith(".json"):
         raise UsageError(f"--shape: expected a tree file (.json) with a 2D root, got {tree_file!r}")
     if not image.is_file():
         raise UsageError(f"--shape: file not found: {image}")
+    if steps < 1:
+        raise UsageError(f"--steps: expected at least 1, got {steps}")
     if profile and extrude is not None:
         raise UsageError("--profile and --extrude: a profile is lifted by revolve; give one of them")
     if extrude is not None and not (0 < extrude < float("inf")):
         raise UsageError(f"--extrude: expected a positive height, got {extrude}")
-    if steps < 1:
-        raise UsageError(f"--steps: expected at least 1, got {steps}")
-    if output.exists() and (not output.is_dir() or any(output.iterdir())):
-        raise UsageError(f"run folder {output} exists and is not an empty folder; choose a new folder")
-    tree = load_tree(tree_file, dim=None)
-    if tree.dim != 2:
-        raise UsageError(f"--shape: expected a tree with a 2D root (a 2D fit), got a 3D {tree.root.type_name}; "
-                         "3D trees fit to --masks, --image or --target-mesh")
-    mask = read_mask(image)
-    torch.manual_seed(seed)
     try:
-        settings = Fit2DSettings(mode="profile" if profile else "shape", steps=steps, loss=loss,
-                                 transport=TransportSettings(**transport)).check()
-    except TypeError as e:
-        raise UsageError(f"2D fit settings: {e}") from None
-    try:
-        res = fit_2d(tree, mask, settings)
+        res = fit_shape(tree_file, image, run_dir=output, profile=profile, extrude=extrude, steps=steps, loss=loss,
+                        transport=transport, seed=seed)
     except InputError as e:
-        raise UsageError(f"--shape {image}: {e}") from None
-    out = {"run": str(output), **res.to_json()}
-    with staged_directory(output) as tmp:
-        write_text(tmp / "tree.json", json.dumps(tree_to_json(res.tree), indent=1) + "\n")
-        from ipm.viz.overlay import overlay
-
-        overlay(mask, res.mask, title=f"2D fit ({res.mode}): target red, fit green").save(tmp / "overlay.png", "PNG")
-        files = {"tree": "tree.json", "overlay": "overlay.png"}
-        if profile or extrude is not None:
-            from ipm.generators.sdftree import SdfTreeGenerator
-            from ipm.io.export import export_mesh
-
-            data = lifted(res, extrude)
-            write_text(tmp / "lifted.json", json.dumps(data, indent=1) + "\n")
-            gen3 = SdfTreeGenerator(tree_from_json(data), "sdftree", "lifted.json")
-            export_mesh(gen3.to_mesh(gen3.spec.defaults(), resolution=128), tmp / "mesh.obj", sidecar=False)
-            files.update(lifted="lifted.json", mesh="mesh.obj")
-        out["files"] = files
-        out["settings"] = {"mode": settings.mode, "steps": settings.steps, "loss": settings.loss, "seed": seed}
-        write_text(tmp / "result.json", json.dumps(out, indent=1) + "\n")
-    emit({k: out[k] for k in ("run", "mode", "iou", "loss", "seconds", "pose")}, json_out)
+        raise UsageError(str(e) if str(e).startswith("run folder") else f"--shape {image}: {e}") from None
+    emit({"run": res.run_dir, **{k: res.scores[k] for k in ("mode", "iou")}, "loss": res.loss,
+          "seconds": res.scores["seconds"], "pose": res.scores["pose"]}, json_out)
 
 
 FIT_BUDGET = 1500
@@ -361,13 +322,13 @@ def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: 
 
     try:
         if resume is not None:
-            out = fit_structure(run_dir=resume, resume=True, progress=progress, device=dev)
+            res = fit_structure(run_dir=resume, resume=True, progress=progress, device=dev)
         else:
-            out = fit_structure(target_mesh=target_mesh, up=up, masks=masks, start=start, run_dir=output,
+            res = fit_structure(target_mesh=target_mesh, up=up, masks=masks, start=start, run_dir=output,
                                 progress=progress, device=dev, budget=budget, seed=seed)
     finally:
         if started and started[0]:
             bar.stop()
-    out.pop("tree", None)
-    emit(out, json_out)
+    emit({**res.scores, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
+          "run": res.run_dir}, json_out)
     sys.stdout.flush()
