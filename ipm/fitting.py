@@ -37,15 +37,24 @@ log = logging.getLogger(__name__)
 
 
 def _settings_from_json(d: dict):
-    """FitSettings from a run's settings.json (fields this version does not know are ignored)."""
+    """FitSettings from a run's settings.json; a key this version does not know is refused (a run of another
+    version, or an edited file), naming it."""
     from ipm.optim.fit import FitSettings
 
     if not isinstance(d, dict):
         raise InputError(f"settings: expected an object, got {type(d).__name__}")
     known = {f.name for f in fields(FitSettings)}
-    # runs recorded before the description length and the anchor replay without them
+    # runs recorded before the description length and the anchor replay without them; before the strategies
+    # owned their settings, memetic's and nlopt's were fields of their own
     d = {"part_cost": 0.0, "anchor": 0.0, **d}
-    return FitSettings(**{k: v for k, v in d.items() if k in known})  # nested dicts become settings objects
+    old = {k: d.pop(k) for k in ("memetic", "nlopt") if k in d}
+    if old:
+        d["search"] = {**old, **(d.get("search") or {})}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InputError(f"settings: unknown key(s) {', '.join(unknown)}; expected keys among "
+                         f"{', '.join(sorted(known))}")
+    return FitSettings(**d)  # nested dicts become settings objects
 
 
 @one_by_default

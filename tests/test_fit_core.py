@@ -87,15 +87,17 @@ def test_settings_validation():
         with pytest.raises(ValueError, match=msg):
             FitSettings(**bad).check()
     with pytest.raises(ValueError, match=r"memetic settings: unknown setting\(s\) popsize"):
-        FitSettings(memetic={"popsize": 4})
+        FitSettings(search={"memetic": {"popsize": 4}})
 
 
 def test_nested_settings_from_dicts_and_the_learning_rate():
-    from ipm.optim import discrete as D
     from ipm.optim.fit import MESH_LR, MaskTarget, fit_lr
+    from ipm.optim.strategies.memetic import MemeticSettings
 
-    s = FitSettings(memetic={"lr": 0.01, "population": 4}, nlopt={"algorithm": "GN_ESCH"})
-    assert s.memetic == D.MemeticSettings(lr=0.01, population=4) and s.nlopt.algorithm == "GN_ESCH"
+    s = FitSettings(search={"memetic": {"lr": 0.01, "population": 4}, "nlopt": {"algorithm": "GN_ESCH"}})
+    assert s.strategy("memetic") == MemeticSettings(lr=0.01, population=4)
+    assert s.strategy("nlopt").algorithm == "GN_ESCH" and s.strategy("enumerate") is None
+    assert FitSettings().strategy() == MemeticSettings()  # the default strategy's defaults
     dishes, building = get_generator("dishes"), get_generator("building")
     from ipm.render.camera import input_views
 

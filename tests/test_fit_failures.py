@@ -36,7 +36,7 @@ def test_an_error_inside_the_objective_propagates(local, discrete, target, monke
 
     monkeypatch.setattr(render, "soft_silhouette", broken)
     settings = FitSettings(budget=80, seed=0, local=local, discrete=discrete, lr=0.03,
-                           memetic={"population": 4, "refine_steps": 5}, nlopt={"refine_steps": 5})
+                           search={"memetic": {"population": 4, "refine_steps": 5}, "nlopt": {"refine_steps": 5}})
     with pytest.raises(RuntimeError, match="^injected$") as err:
         run_fit(Boxes(), target, settings, sink=lambda rec: phases.append(rec["phase"]))
     assert type(err.value) is RuntimeError

@@ -60,12 +60,12 @@ def make_target(values, views=2, size=64):
 @pytest.mark.parametrize("strategy", ["enumerate", "memetic"])
 def test_discrete_count_recovered(strategy):
     target = make_target({"width": 1.2, "depth": 0.5, "height": 0.4, "count": 3})
-    from ipm.optim.discrete import MemeticSettings
+    from ipm.optim.strategies.memetic import MemeticSettings
 
     # a small budget: shorter refinements than the thesis's 50 Adam steps, so that generations happen
     budget = 300 if strategy == "enumerate" else 700
     settings = FitSettings(budget=budget, discrete=strategy, seed=1, lr=0.03,
-                           memetic=MemeticSettings(population=6, refine_steps=25))
+                           search={"memetic": MemeticSettings(population=6, refine_steps=25)})
     res, prob, best = run_fit(Stack(), target, settings)
     assert best["discrete"]["count"] == 3, (strategy, best, res.loss)
     assert res.loss < 0.08

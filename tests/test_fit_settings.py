@@ -9,8 +9,9 @@ import pytest
 
 from ipm import losses as L
 from ipm.errors import InputError
-from ipm.optim import discrete as D
 from ipm.optim.settings import FitSettings
+from ipm.optim.strategies.memetic import MemeticSettings
+from ipm.optim.strategies.nlopt_global import NloptSettings
 
 NAN, INF = math.nan, math.inf
 
@@ -41,6 +42,7 @@ BAD = {
     "anchor": ("anchor", [-0.01, INF, NAN, "strong", True]),
     "subdivide": ("subdivision", ["butterfly", 1, True]),
     "subdivide_levels": ("subdivision levels", [0, 4, 1.5, True, "2"]),
+    "search": ("search", ["memetic", 3, [1, 2]]),
     "memetic": ("memetic", ["fast", 3, [1, 2]]),
     "nlopt": ("nlopt", ["GN_ESCH", 0]),
     "memetic.population": ("memetic population", [1, 0, 4.5, True, "8"]),
@@ -69,9 +71,14 @@ UNCHECKED = {"lod"}
 
 
 def _settings(field: str, value) -> FitSettings:
+    strategies = ("memetic", "nlopt")  # their settings are FitSettings.search entries
     if "." in field:
         parent, name = field.split(".")
+        if parent in strategies:
+            return FitSettings(search={parent: {name: value}})
         return FitSettings(**{parent: {name: value}})
+    if field in strategies:
+        return FitSettings(search={field: value})
     return FitSettings(**{field: value})
 
 
@@ -82,8 +89,9 @@ def _cases() -> list:
 
 def test_every_field_has_bad_values():
     names = {f.name for f in dataclasses.fields(FitSettings)} - UNCHECKED
-    names |= {f"memetic.{f.name}" for f in dataclasses.fields(D.MemeticSettings)}
-    names |= {f"nlopt.{f.name}" for f in dataclasses.fields(D.NloptSettings)}
+    names |= {"memetic", "nlopt"}  # the strategies' own settings (FitSettings.search)
+    names |= {f"memetic.{f.name}" for f in dataclasses.fields(MemeticSettings)}
+    names |= {f"nlopt.{f.name}" for f in dataclasses.fields(NloptSettings)}
     names |= {f"transport.{f.name}" for f in dataclasses.fields(L.TransportSettings)}
     assert names == set(BAD)
 
@@ -100,9 +108,13 @@ def test_a_bad_value_is_an_input_error_naming_the_field(field, label, value):
 @pytest.mark.parametrize("parent, key", [("memetic", "popsize"), ("nlopt", "algorithm_name")])
 def test_unknown_nested_keys_are_refused(parent, key):
     with pytest.raises(InputError, match=rf"{parent} settings: unknown setting\(s\) {key}; expected some of"):
-        FitSettings(**{parent: {key: 1}})
+        FitSettings(search={parent: {key: 1}})
     with pytest.raises(InputError, match=rf"{parent} settings: unknown setting\(s\) {key}"):
-        dataclasses.replace(FitSettings(), **{parent: {key: 1}})
+        dataclasses.replace(FitSettings(), search={parent: {key: 1}})
+    with pytest.raises(InputError, match=r"search settings: 'nope': expected a search strategy"):
+        FitSettings(search={"nope": {}})
+    with pytest.raises(InputError, match=r"search settings: 'enumerate' takes no settings"):
+        FitSettings(search={"enumerate": {}})
 
 
 def test_messages_say_what_is_allowed():
@@ -111,9 +123,10 @@ def test_messages_say_what_is_allowed():
              (dict(sigma=INF), "sigma: expected a blur >= 0, got inf"),
              (dict(polish=NAN), "polish: expected a share of the budget in [0, 1], got nan"),
              (dict(camera="maybe"), "camera: expected one of 'fit', 'known', got 'maybe'"),
-             (dict(memetic={"population": 1}), "memetic population: expected a population >= 2, got 1"),
-             (dict(memetic={"tournament": 9}), "memetic tournament: expected a size in [1, 8] (the population), got 9"),
-             (dict(nlopt={"population": -1}), "nlopt population: expected a population >= 0, got -1"),
+             (dict(search={"memetic": {"population": 1}}), "memetic population: expected a population >= 2, got 1"),
+             (dict(search={"memetic": {"tournament": 9}}),
+              "memetic tournament: expected a size in [1, 8] (the population), got 9"),
+             (dict(search={"nlopt": {"population": -1}}), "nlopt population: expected a population >= 0, got -1"),
              (dict(free=["a", 1]), "free: expected a list of parameter names, got ['a', 1]")]
     for kw, message in cases:
         with pytest.raises(InputError) as e:
@@ -129,11 +142,11 @@ def test_messages_say_what_is_allowed():
     dict(free=("radius",), sigma=1, prior_weight=2, polish=1),  # a tuple of names, ints for numbers
     dict(budget=np.int64(5), seed=np.int32(3), sigma=np.float32(0.5), polish=np.float64(0.5)),
     dict(camera="fit", discrete="none", loss="mse", local="lbfgs", pose=False, coarse_to_fine=False, ties=False),
-    dict(memetic={"population": 2, "tournament": 2, "p_mutation": 0.0, "sigma_mutation": 0.0, "refine_steps": 1,
-                  "lr": 1.0, "stall_generations": 1, "min_diversity": 0.0, "neighbours": False,
-                  "refine_elite": False}),
-    dict(memetic=D.MemeticSettings(p_mutation=1, tournament=8), nlopt={"algorithm": "GN_ISRES", "refine_steps": 1,
-                                                                       "population": 0}),
+    dict(search={"memetic": {"population": 2, "tournament": 2, "p_mutation": 0.0, "sigma_mutation": 0.0,
+                             "refine_steps": 1, "lr": 1.0, "stall_generations": 1, "min_diversity": 0.0,
+                             "neighbours": False, "refine_elite": False}}),
+    dict(search={"memetic": MemeticSettings(p_mutation=1, tournament=8),
+                 "nlopt": {"algorithm": "GN_ISRES", "refine_steps": 1, "population": 0}}),
 ])
 def test_valid_edge_values_pass(kw):
     s = FitSettings(**kw)

@@ -30,9 +30,9 @@ import torch
 from ipm import losses as L
 from ipm.generators import get_generator
 from ipm.metrics import unit_sphere_frame
-from ipm.optim.discrete import MemeticSettings
 from ipm.optim.evaluator import Evaluator
 from ipm.optim.fit import TIE_SHARE, FitSettings, MaskTarget, Problem, break_ties, hard_scores, run_fit
+from ipm.optim.strategies.memetic import MemeticSettings
 from ipm.render.camera import orbit_camera
 from ipm.render.raster import rasterize_mesh
 from ipm.render.soft import soft_silhouette
@@ -131,7 +131,7 @@ def test_a_hidden_handle_keeps_the_presets_value(preset, handle, strategy):
     the soft loss (by 0.5 % to 4.4 % in those fits), and the candidates with it got more of the search."""
     target = mug_target(HIDDEN)
     settings = FitSettings(budget=200, seed=0, preset=preset, discrete=strategy,
-                           memetic=MemeticSettings(population=4, refine_steps=10))
+                           search={"memetic": MemeticSettings(population=4, refine_steps=10)})
     res, prob, best = run_fit(get_generator("dishes"), target, settings)
     assert best["discrete"]["has_handle"] == handle, (res.loss, res.tied)
     assert res.params["has_handle"] == handle and res.tied in ((), ("has_handle",))

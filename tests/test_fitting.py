@@ -4,6 +4,7 @@ not match its recorded run refused with InputError naming the folder and what di
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 from boxes import Boxes, boxes_target
@@ -73,10 +74,37 @@ def test_bad_settings_are_input_errors(masks, tmp_path):
     for bad, msg in [(dict(seed=-1), "seed: expected a seed >= 0, got -1"),
                      (dict(prior_weight=float("nan")), "prior weight: expected a weight >= 0, got nan"),
                      (dict(polish=1.5), "polish: expected"), (dict(sigma=-1.0), "sigma: expected"),
-                     (dict(budget=2.5), "budget: expected"), (dict(memetic={"tournament": 9}), "tournament"),
-                     (dict(nlopt={"algorithm": "GN_NOPE"}), "nlopt algorithm: expected one of"),
+                     (dict(budget=2.5), "budget: expected"), (dict(search={"memetic": {"tournament": 9}}), "tournament"),
+                     (dict(search={"nlopt": {"algorithm": "GN_NOPE"}}), "nlopt algorithm: expected one of"),
                      (dict(free=["nope"]), "free parameters: expected continuous parameters"),
                      (dict(ranges={"count": [0, 9]}), "ranges: count: expected 1 <= lo <= hi <= 3")]:
         with pytest.raises(InputError, match=msg):
             ipm.fit(Boxes(), masks=masks, run_dir=tmp_path / "never", **bad)
         assert not (tmp_path / "never").exists()
+
+
+@pytest.mark.parametrize("edit, words", [
+    (lambda s: s.update(bogus=1), "unknown key(s) bogus"),
+    (lambda s: s.update(search={"nope": {}}), "'nope': expected a search strategy"),
+])
+def test_a_resume_refuses_settings_it_does_not_know(masks, tmp_path, edit, words):
+    """Issue #33: settings.json's keys are checked on resume, not dropped; the strategies' settings too."""
+    run = tmp_path / "run"
+    ipm.fit(Boxes(), masks=masks, discrete="none", budget=6, seed=0, run_dir=run)
+    data = json.loads((run / "settings.json").read_text())
+    edit(data["settings"])
+    (run / "settings.json").write_text(json.dumps(data))
+    with pytest.raises(InputError, match=re.escape(words)):
+        ipm.fit(Boxes(), run_dir=run, resume=True)
+
+
+def test_a_run_recorded_with_the_old_strategy_settings_resumes(masks, tmp_path):
+    """Runs recorded before the strategies owned their settings kept "memetic" and "nlopt" at the top level."""
+    run = tmp_path / "run"
+    first = ipm.fit(Boxes(), masks=masks, discrete="none", budget=6, seed=0, run_dir=run)
+    data = json.loads((run / "settings.json").read_text())
+    data["settings"].pop("search")
+    data["settings"].update(memetic={"population": 4}, nlopt={"algorithm": "GN_ESCH"})
+    (run / "settings.json").write_text(json.dumps(data))
+    again = ipm.fit(Boxes(), run_dir=run, resume=True)
+    assert again.params == first.params

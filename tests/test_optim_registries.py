@@ -80,3 +80,44 @@ def test_the_builtin_members():
 
     assert LOSSES["iou"] is soft_iou_loss and LOSSES["mse"] is mse_loss
     assert float(LOSSES["mse"](p, p)) == 0.0 and 0.0 <= float(LOSSES["iou"](p, t)) <= 1.0
+
+
+STRATEGY_WITH_SETTINGS = '''
+from dataclasses import dataclass
+
+from ipm.optim.strategies import STRATEGIES
+
+SEEN = []
+
+
+@dataclass(frozen=True)
+class Settings:
+    share: float = 0.5
+
+
+@STRATEGIES.register("{name}")
+def part_of_the_budget(ev, space, refine, rng, settings=None):
+    s = settings.strategy() if settings is not None else Settings()
+    SEEN.append(s)
+    x, d = space.starts[0]
+    refine(x, d, int(ev.remaining * s.share))
+
+
+part_of_the_budget.settings = Settings
+'''
+
+
+def test_a_strategy_with_settings_is_one_new_module(tmp_path, monkeypatch, target):
+    """Issue #33: a strategy registers its settings class with itself; FitSettings.search carries them by the
+    strategy's name, checked by that class (unknown keys refused), and run files keep them."""
+    name, pkg = "throwaway_share", "throwaway_strategies_settings"
+    with throwaway_member(STRATEGIES, name, STRATEGY_WITH_SETTINGS.format(name=name), tmp_path, monkeypatch, pkg):
+        assert name in STRATEGIES  # found: its module imported
+        mod = sys.modules[f"{pkg}.member"]
+        s = FitSettings(budget=40, discrete=name, seed=0, lr=0.03, search={name: {"share": 0.25}})
+        s.check()
+        assert s.strategy() == mod.Settings(0.25) and s.to_json()["search"] == {name: {"share": 0.25}}
+        with pytest.raises(InputError, match=rf"{name} settings: unknown setting\(s\) bogus"):
+            FitSettings(discrete=name, search={name: {"bogus": 1}})
+        run_fit(Boxes(), target, s)
+        assert mod.SEEN == [mod.Settings(0.25)]

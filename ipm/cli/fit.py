@@ -211,7 +211,7 @@ def register(app: typer.Typer) -> None:
                          progress=progress, device=dev, budget=budget, seed=seed, discrete=discrete, camera=camera,
                          loss=loss, local=local, lr=lr, preset=preset, fix=fixed, ranges=ranges,
                          pose=not no_pose,
-                         prior_weight=prior, nlopt=D.NloptSettings(algorithm=nlopt_algorithm),
+                         prior_weight=prior, search={"nlopt": {"algorithm": nlopt_algorithm}},
                          subdivide=subdivide, subdivide_levels=subdivide_levels, lod=lod,
                          transport={k: v for k, v in (("blur", blur), ("dustbin", dustbin)) if v is not None},
                          **{k: v for k, v in (("polish", polish), ("part_cost", part_cost), ("anchor", anchor))

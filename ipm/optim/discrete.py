@@ -57,35 +57,12 @@ class Space:
         return decode_discrete(self.discrete, z, self.fixed_discrete)
 
 
-# Settings of the built-in searches. Each field's type says what it allows (msgspec checks it:
-# FitSettings.check); the tournament being at most the population is checked there too.
+# Types of the built-in searches' settings (each strategy's settings class lives in its module and is
+# registered with it: ``strategy.settings``; msgspec checks the values, FitSettings.check)
 Probability = Annotated[float, Meta(ge=0, le=1, extra={"noun": "a probability"})]
 LearningRate = Annotated[float, Meta(gt=0, le=1, extra={"noun": "a learning rate"})]
 NloptAlgorithm = Literal["GN_CRS2_LM", "GN_ESCH", "GN_ISRES"]
 NLOPT_GLOBAL: tuple[str, ...] = get_args(NloptAlgorithm)
-
-
-@dataclass(frozen=True)
-class MemeticSettings:
-    population: Annotated[int, Meta(ge=2, extra={"noun": "a population"})] = 8
-    tournament: Annotated[int, Meta(ge=1, extra={"noun": "a tournament size"})] = 2
-    p_mutation: Probability = 0.2
-    sigma_mutation: Annotated[float, Meta(ge=0, extra={"noun": "a spread"})] = 0.3
-    refine_steps: Annotated[int, Meta(ge=1, extra={"noun": "a number of steps"})] = 50
-    lr: LearningRate | None = None   # Adam step of the offspring refinement; None: the fit's (thesis: 0.01)
-    stall_generations: Annotated[int, Meta(ge=1, extra={"noun": "a number of generations"})] = 3
-    min_diversity: Annotated[float, Meta(ge=0, extra={"noun": "a diversity"})] = 0.02
-    neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value
-    refine_elite: bool = True  # the elite is refined again in every generation (not only copied)
-    # the first population refined by successive halving on the same budget (discrete.halving)
-    halving: bool = True
-
-
-@dataclass(frozen=True)
-class NloptSettings:
-    algorithm: NloptAlgorithm = "GN_CRS2_LM"
-    refine_steps: Annotated[int, Meta(ge=1, extra={"noun": "a number of steps"})] = 10
-    population: Annotated[int, Meta(ge=0, extra={"noun": "a population"})] = 0  # 0: nlopt's default
 
 
 def best_pose(ev: Evaluator, space: Space, x: torch.Tensor, d: dict) -> torch.Tensor:

@@ -119,8 +119,9 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     lr = fit_lr(gen, target, settings)
 
     search_lr = lr
-    if settings.discrete == "memetic" and settings.memetic.lr is not None:
-        search_lr = float(settings.memetic.lr)
+    own = settings.strategy()
+    if getattr(own, "lr", None) is not None:  # a strategy's own step for its refinements (memetic's lr)
+        search_lr = float(own.lr)
 
     def refine(x, d, steps):
         if ev.remaining <= 0:

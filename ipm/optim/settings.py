@@ -78,23 +78,37 @@ class FitSettings:
     depth_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
     parts_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
     image_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 1.0
-    memetic: D.MemeticSettings = field(default_factory=D.MemeticSettings)
-    nlopt: D.NloptSettings = field(default_factory=D.NloptSettings)
+    # the search strategies' own settings, by strategy name ({"memetic": {"population": 12}}): each strategy
+    # registers its settings class with it (``strategy.settings``); absent: that class's defaults
+    search: Annotated[dict, Meta(extra={"noun": "a dict of strategy names"})] = field(default_factory=dict)
     # the transport losses' settings (sinkhorn: blur, iterations, dustbin; sliced: projections; both: size)
     transport: L.TransportSettings = field(default_factory=L.TransportSettings)
 
     def __post_init__(self):
         # nested settings may come as dicts (JSON run files, experiment TOML, the Python API); unknown
         # keys are refused here, the values by check()
-        for name, cls in (("memetic", D.MemeticSettings), ("nlopt", D.NloptSettings),
-                          ("transport", L.TransportSettings)):
-            v = getattr(self, name)
-            if isinstance(v, dict):
-                setattr(self, name, dataclass_from(cls, v, f"{name} settings", "setting(s)"))
+        if isinstance(self.transport, dict):
+            self.transport = dataclass_from(L.TransportSettings, self.transport, "transport settings", "setting(s)")
+        if not isinstance(self.search, dict):
+            raise InputError(f"search: expected a dict of strategy names, got {self.search!r}")
+        search = {}
+        for name, v in self.search.items():
+            cls = _strategy_settings(name)
+            search[name] = dataclass_from(cls, v, f"{name} settings", "setting(s)") if isinstance(v, dict) else v
+        self.search = search
+
+    def strategy(self, name: str | None = None):
+        """The settings of search strategy ``name`` (default: :attr:`discrete`): as given in :attr:`search`,
+        else its settings class's defaults; None for a strategy without settings."""
+        name = self.discrete if name is None else name
+        if name in self.search:
+            return self.search[name]
+        cls = getattr(STRATEGIES[name], "settings", None)
+        return None if cls is None else cls()
 
     def check(self) -> None:
         """Raise :class:`~ipm.errors.InputError` ("budget: expected an integer >= 1, got 0") for a field
-        of the wrong type or out of range; nested fields are named "memetic population"."""
+        of the wrong type or out of range; a strategy's settings are named "memetic population"."""
         import msgspec
 
         _one_of(self.discrete, "discrete search", STRATEGIES.names())
@@ -112,12 +126,13 @@ class FitSettings:
         bad = first_infinite(data, FitSettings)
         if bad:
             raise InputError(_message(data, "", bad))
+        for name, s in self.search.items():  # each strategy's settings by its own class
+            cls = _strategy_settings(name)
+            if not isinstance(s, cls):
+                raise InputError(f"{name}: expected a table of {name} settings, got {s!r}")
+            _check_nested(name, cls, _plain(s))
         if self.transport.dustbin is not None and not any(n == "sinkhorn" for _, n in terms):
             raise InputError(f"transport dustbin: applies to a loss with a sinkhorn term, got loss {self.loss!r}")
-        m = self.memetic
-        if m.tournament > m.population:
-            raise InputError(f"memetic tournament: expected a size in [1, {m.population}] (the population), "
-                             f"got {m.tournament}")
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -152,6 +167,41 @@ def _message(data: dict, error: str, path: tuple[str, ...] | None = None) -> str
         return f"settings: {error}"
     label = " ".join([_LABELS.get(names[0], names[0]), *names[1:]])
     return f"{label}: expected {allowed(t)}, got {value!r}"
+
+
+def _strategy_settings(name: str) -> type:
+    """The settings class strategy ``name`` registers; InputError where there is no such strategy or it takes
+    no settings."""
+    if name not in STRATEGIES:
+        raise InputError(f"search settings: {name!r}: expected a search strategy ({', '.join(STRATEGIES.names())})")
+    cls = getattr(STRATEGIES[name], "settings", None)
+    if cls is None:
+        with_settings = [n for n, f in STRATEGIES.items() if getattr(f, "settings", None) is not None]
+        raise InputError(f"search settings: {name!r} takes no settings; strategies with settings: "
+                         f"{', '.join(with_settings)}")
+    return cls
+
+
+def _check_nested(name: str, cls: type, data: dict) -> None:
+    """msgspec's check of one strategy's settings, as one line naming "<strategy> <field>", then the class's own
+    rules between fields (``check()``, where it has one)."""
+    import msgspec
+
+    try:
+        msgspec.convert(data, cls)
+    except msgspec.ValidationError as e:
+        path = error_path(str(e))
+        types = field_types(cls)
+        if path and path[0] in types:
+            raise InputError(f"{name} {path[0]}: expected {allowed(types[path[0]])}, got {data.get(path[0])!r}"
+                             ) from None
+        raise InputError(f"{name} settings: {e}") from None
+    bad = first_infinite(data, cls)
+    if bad:
+        raise InputError(f"{name} {bad[0]}: expected a finite number, got {data.get(bad[0])!r}")
+    check = getattr(cls(**data), "check", None)
+    if check is not None:
+        check()
 
 
 def _one_of(value, name: str, known) -> None:

@@ -7,17 +7,22 @@ and successive halving of the first population (``MemeticSettings.halving``,
 :func:`ipm.optim.discrete.halving`): on the budget of 50 steps each, the best start ends with about 180
 instead of 50; at the public table's 500 evaluations the first population takes nearly all of the search,
 and single-view building fits that stopped at 50 steps landed short (results/table_coverage).
-Settings: :class:`~ipm.optim.discrete.MemeticSettings` (``FitSettings.memetic``)."""
+Settings: :class:`MemeticSettings` (``FitSettings.search["memetic"]``), registered with the strategy."""
 
 from __future__ import annotations
 
 import logging
+from dataclasses import dataclass
+from typing import Annotated
 
 import numpy as np
 import torch
+from msgspec import Meta
 
+from ipm.errors import InputError
 from ipm.optim.discrete import (
-    MemeticSettings,
+    LearningRate,
+    Probability,
     Refine,
     Space,
     best_pose,
@@ -33,10 +38,37 @@ from ipm.optim.strategies import STRATEGIES
 log = logging.getLogger(__name__)
 
 
+@dataclass(frozen=True)
+class MemeticSettings:
+    """The memetic search's settings (``FitSettings.search["memetic"]``); defaults are the thesis authors'."""
+
+    population: Annotated[int, Meta(ge=2, extra={"noun": "a population"})] = 8
+    tournament: Annotated[int, Meta(ge=1, extra={"noun": "a tournament size"})] = 2
+    p_mutation: Probability = 0.2
+    sigma_mutation: Annotated[float, Meta(ge=0, extra={"noun": "a spread"})] = 0.3
+    refine_steps: Annotated[int, Meta(ge=1, extra={"noun": "a number of steps"})] = 50
+    lr: LearningRate | None = None   # Adam step of the offspring refinement; None: the fit's (thesis: 0.01)
+    stall_generations: Annotated[int, Meta(ge=1, extra={"noun": "a number of generations"})] = 3
+    min_diversity: Annotated[float, Meta(ge=0, extra={"noun": "a diversity"})] = 0.02
+    neighbours: bool = True   # also refine the elite's untried +-1 neighbours in each discrete value
+    refine_elite: bool = True  # the elite is refined again in every generation (not only copied)
+    # the first population refined by successive halving on the same budget (discrete.halving)
+    halving: bool = True
+
+
+    def check(self) -> None:
+        """The rule between fields: a tournament is drawn from the population."""
+        if self.tournament > self.population:
+            raise InputError(f"memetic tournament: expected a size in [1, {self.population}] (the population), "
+                             f"got {self.tournament}")
+
+
+
+
 @STRATEGIES.register("memetic")
 def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None) -> None:
     """Genetic search with gradient-refined offspring; stops when the budget is spent."""
-    s = MemeticSettings() if settings is None else settings.memetic
+    s = MemeticSettings() if settings is None else settings.strategy("memetic")
     pop: list[tuple[torch.Tensor, dict, float]] = []
     pose0 = space.starts[0][0]
 
@@ -154,3 +186,4 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
 
 # the kept starts are followed by the generator's presets, best first (ipm.optim.pose.rank_presets)
 memetic.uses_presets = True
+memetic.settings = MemeticSettings
