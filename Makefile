@@ -21,7 +21,7 @@ $(STAMP): pyproject.toml
 install: $(STAMP) ## create .venv (torch 2.13 CPU first, then the project)
 
 demo: $(STAMP) ## run the main job on built-in data and print where the results are
-	$(BIN)/python -m ipm.cli.demo results/demo
+	$(BIN)/ipm demo results/demo
 
 test: $(STAMP) ## run the full test suite
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile

@@ -1,7 +1,7 @@
 """Threads on a quiet and on a busy machine: asking for more must never be slower than one (issue #28).
 
 One workload, the demo's fit of the dishes generator to two masks of the real mug scan (200 evaluations at
-128 px, ``ipm.cli.demo.fit_real_mug``), each run in a fresh process, timed with 1 thread, with 2 asked for
+128 px, ``ipm.showcase.fit_real_mug``), each run in a fresh process, timed with 1 thread, with 2 asked for
 through ``IPM_THREADS`` (``ipm.threads`` uses them only where cores are idle) and with 2 forced (torch's
 own behaviour: ``ipm.threads.usable`` bypassed), on a quiet machine and with as many busy processes as cores
 (``python -c "while True: pass"``, the ``yes > /dev/null`` of the issue). Median and best of ``REPEAT``
@@ -32,7 +32,7 @@ from pathlib import Path
 from ipm import threads
 if sys.argv[1] == "forced":
     threads.usable = lambda n: min(n, threads.cores())
-from ipm.cli import demo
+from ipm import showcase as demo
 t0 = time.perf_counter()
 with threads.using(), tempfile.TemporaryDirectory() as tmp:
     used = threads.usable(threads.requested())
@@ -78,7 +78,7 @@ def run(out_dir: Path) -> None:
                          "median s": round(statistics.median(times[name]), 2), "best s": round(min(times[name]), 2)})
     write_results(out_dir, "threads", "Threads on a quiet and a busy machine (the demo's 2-view mug fit, 200 "
                   "evaluations)", rows,
-                  notes="Each run is a fresh process (python -c ... ipm.cli.demo.fit_real_mug), so the times include "
+                  notes="Each run is a fresh process (python -c ... ipm.showcase.fit_real_mug), so the times include "
                         "importing torch (about 3 s). '2 asked': IPM_THREADS=2, used as far as cores are idle "
                         "(ipm.threads); '2 forced': the same with ipm.threads.usable bypassed, torch's own behaviour. "
                         "Busy: one `python -c 'while True: pass'` per core.")

@@ -35,9 +35,11 @@ from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
+from ipm import data
+
 ROOT = Path(__file__).resolve().parents[1]
-DATA = ROOT.parent / "shared" / "data" / "real"
-PHOTOS = DATA / "photos" / "cleargrasp_cups"
+DATA = data.root()
+PHOTOS = DATA / data.PHOTOS
 TABLE1 = ROOT / "experiments" / "table1.toml"
 EPS = 1e-6
 TOLERANCE = 0.005
@@ -118,9 +120,9 @@ def case_photo(tmp: Path, target_eps: float) -> dict:
 
 
 def case_demo_mug(tmp: Path, target_eps: float) -> dict:
-    from ipm.cli import demo
+    from ipm import showcase
 
-    return demo.fit_real_mug(tmp, 200, 128, camera_eps=target_eps, scores_only=True)
+    return showcase.fit_real_mug(tmp, 200, 128, camera_eps=target_eps, scores_only=True)
 
 
 def _table1_cell(target: str, target_eps: float) -> dict:

@@ -10,8 +10,10 @@ import numpy as np
 import pytest
 import torch
 
+from ipm import data
+
 ROOT = Path(__file__).resolve().parents[1]
-REAL = (ROOT / ".." / "shared" / "data" / "real").resolve()
+REAL = data.root()  # ../shared/data/real beside the project, or $IPM_DATA (ipm.data: the one place it is named)
 
 
 def require_file(p: Path) -> Path:

@@ -1,345 +1,77 @@
-"""``make demo``: the main job end to end on real data, printing where the results are.
-
-1. Masks of a real mug scan (``../shared/data/real/vessels/ocrtoc_mug.ply``, Z up, in the unit bounding
-   sphere as in DESIGN.md's protocol v2) from 2 orthogonal protocol views, rendered by the exact rasterizer.
-2. ``ipm.fit`` of the dishes generator to those masks (pose free, gradient refinement).
-3. Scores (protocol v2: the fit scored where it placed the mug): mask IoU on the input views, held-out
-   silhouette IoU (16 protocol views), F-score at 0.02 / 0.05, Chamfer-L1 and 3D IoU against the scan;
-   overlays and the loss curve.
-4. Beyond silhouettes (issue #13): a mask of the teal mug in a real ClearGrasp photo from a box
-   (GrabCut), the fitted mug through the differentiable deferred renderer (shading, depth, normals; the
-   image's gradient with respect to the vertices), and the mug fitted to the photo itself: its box, its
-   depth map and the camera's intrinsics (the table under it holds the camera's elevation).
-5. Subdivision (issue #14): the fitted mug's coarse mesh (the generator's low level of detail)
-   subdivided two levels by midpoint, Loop and neural subdivision (the shipped weights), each scored by
-   its distance to the generator's own surface at 4x the detail.
-6. Curves and 2D fits (issue #15): the side silhouette of a real bottle scan
-   (``../shared/data/real/vessels/trimesh_fuze_bottle.obj``), seen from far away, fitted by a 12-point 2D
-   profile that is then revolved into a solid and scored against the scan; the silhouette's outline drawn
-   as a 3-pixel line and vectorized (``ipm.curves``) into an SVG.
-7. Structure recovery (issue #16): the tree of the real armchair
-   (``../shared/data/real/furniture/kaolin_armchair.obj``) searched from its mesh (``ipm fit --structure
-   search``): which parts, joined how; scored by held-out silhouette IoU against the scan.
-8. The universal SDF generator: the shipped trees meshed, their Jacobians checked against float64
-   finite differences.
-
-Run: ``python -m ipm.cli.demo [OUT_DIR] [--budget N] [--size S]`` (what ``make demo`` does).
-"""
+"""``ipm demo [OUT_DIR]`` (what ``make demo`` runs): the main jobs on real data (:mod:`ipm.showcase`, each step
+the library calls a user makes), their numbers printed, and where the results are."""
 
 from __future__ import annotations
 
-import argparse
-import json
-import time
 from pathlib import Path
+from typing import Annotated
 
-import numpy as np
-import torch
-
-MUG = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply"
-# the data README says Y up; its long axis is Z (experiments/table1.toml)
-BOTTLE = MUG.parent / "trimesh_fuze_bottle.obj"
-ARMCHAIR = MUG.parent.parent / "furniture" / "kaolin_armchair.obj"
-STRUCTURE_BUDGET = 8000
+import typer
 
 
-def fit_real_mug(out: Path, budget: int, size: int, camera_eps: float = 0.0, scores_only: bool = False) -> dict:
-    """The dishes generator fitted to 2 protocol views of the real mug scan, scored as protocol v2 scores it.
-    ``camera_eps`` moves the cameras' eyes by that much relative (benchmarks/perturbation.py)."""
-    import ipm
-    from ipm.io.masks import save_mask_set
-    from ipm.io.meshes import load_mesh
-    from ipm.metrics import mask_iou, shape_scores
-    from ipm.render.camera import heldout_views, input_views
-    from ipm.render.raster import rasterize_mesh
+def register(app: typer.Typer) -> None:
+    @app.command("demo")
+    def demo(
+        out: Annotated[Path, typer.Argument(help="output folder")] = Path("results/demo"),
+        budget: Annotated[int, typer.Option(min=1, max=100_000, help="evaluations of the 2-view mug fit")] = 200,
+        size: Annotated[int, typer.Option(min=32, max=1024, help="mask size of the 2-view mug fit (pixels)")] = 128,
+    ) -> None:
+        """The main jobs on real data (../shared/data/real, or $IPM_DATA), in about 1.5 minutes on 2 cores."""
+        import torch
 
-    if not MUG.resolve().is_file():
-        raise SystemExit(f"demo: real data not found at {MUG.resolve()} (expected ../shared/data beside the project)")
-    target = load_mesh(MUG.resolve(), up="z", normalize=True)
-    cams = input_views(2, size)
-    if camera_eps:
-        from dataclasses import replace
+        from ipm import showcase as S
 
-        cams = [replace(c, eye=c.eye * (1.0 + camera_eps)) for c in cams]
-    masks = [rasterize_mesh(target, c).mask for c in cams]
-    save_mask_set(out / "mug_masks", masks, cams)
-    t0 = time.perf_counter()
-    result = ipm.fit("dishes", masks=out / "mug_masks", preset="mug", discrete="none", budget=budget, seed=0,
-                     run_dir=out / "mug_fit")
-    wall = time.perf_counter() - t0
-    # DESIGN.md's protocol v2: the fit is scored where it placed the mug, in the frame of the input
-    # cameras (with two views nothing is rescaled)
-    fitted = load_mesh(out / "mug_fit" / "mesh.obj", normalize=False)
-    held = heldout_views(size)
-    held_iou = [mask_iou(rasterize_mesh(fitted, c).mask.numpy(), rasterize_mesh(target, c).mask.numpy())
-                for c in held]
-    s = shape_scores(fitted, target, normalize=False)
-    scores = {"input_view_iou": result.scores.get("iou_per_view"), "heldout_iou_mean": float(np.mean(held_iou)),
-              **s.to_json(), "evaluations": result.evaluations, "wall_time_s": round(wall, 1)}
-    (out / "mug_fit" / "scores.json").write_text(json.dumps(scores, indent=2) + "\n")
-    if scores_only:
-        return {"scores": {"heldout_iou": scores["heldout_iou_mean"]},
-                "discrete": {k: result.params[k] for k in ("has_handle",)}, "loss": result.loss,
-                "wall_time_s": result.wall_time_s}
-    return scores
-
-
-PHOTO = MUG.parent.parent / "photos" / "cleargrasp_cups" / "000000130-opaque-rgb-img.jpg"
-PHOTO_BOX = (380, 255, 600, 495)   # the teal mug (the data README's box)
-
-
-def beyond_silhouettes(out: Path) -> dict:
-    """Issue #13 so far: a photo's mask from a box (GrabCut), and the fitted mug through the differentiable
-    deferred renderer (depth, normals, shading, and the gradient of the image with respect to the vertices)."""
-    from ipm.io.masks import read_photo, write_mask
-    from ipm.io.meshes import load_mesh
-    from ipm.render.camera import heldout_views
-    from ipm.render.deferred import render_deferred
-    from ipm.render.preview import save_png
-    from ipm.segment import box_mask
-
-    folder = out / "beyond_silhouettes"
-    t0 = time.perf_counter()
-    photo = read_photo(PHOTO.resolve())
-    m = box_mask(photo, PHOTO_BOX)
-    mask_s = time.perf_counter() - t0
-    write_mask(folder / "photo_mask.png", m)
-    shown = photo.astype(np.float64)
-    shown[m] = 0.55 * shown[m] + 0.45 * np.array([0.0, 255.0, 0.0])
-    save_png(folder / "photo_mask_overlay.png", shown.round().astype(np.uint8))
-    mesh = load_mesh(out / "mug_fit" / "mesh.obj", normalize=False)
-    verts = mesh.verts.float().requires_grad_(True)
-    t0 = time.perf_counter()
-    r = render_deferred(type(mesh)(verts, mesh.faces), heldout_views(256)[0].to(torch.float32))
-    r.image.sum().backward()
-    render_ms = 1000 * (time.perf_counter() - t0)
-    save_png(folder / "fit_shaded.png", (255 * r.image.detach().clamp(0, 1)).round().byte().numpy())
-    d = r.depth.detach()
-    near, far = float(d[d > 0].min()), float(d.max())
-    save_png(folder / "fit_depth.png", torch.where(d > 0, 255 * (far - d) / max(far - near, 1e-9) * 0.8 + 40, 0)
-             .round().byte().numpy())
-    save_png(folder / "fit_normals.png", ((r.normal.detach() + 1) * 127.5 * (r.mask.detach() > 0)[..., None])
-             .clamp(0, 255).round().byte().numpy())
-    return {"mask_pixels": int(m.sum()), "mask_s": round(mask_s, 2), "faces": mesh.n_faces,
-            "render_ms": round(render_ms, 1), "grad_norm": float(verts.grad.norm())}
-
-
-def fit_photo(out: Path) -> dict:
-    """The dishes generator fitted to the ClearGrasp photo of the teal mug: box, depth map, intrinsics
-    (the settings of ``tests/test_fit_cues.py::test_photo_and_depth_fit_the_real_mug``)."""
-    import ipm
-
-    folder = PHOTO.resolve().parent
-    result = ipm.fit("dishes", image=PHOTO.resolve(), box=PHOTO_BOX, depth=folder / "000000130-opaque-depth-mm.png",
-                     intrinsics=folder / "camera_intrinsics.yaml", photo_size=128, preset="mug", budget=1000,
-                     polish=0.4, discrete="enumerate", image_weight=0.0, seed=0,
-                     run_dir=out / "beyond_silhouettes" / "photo_fit")
-    parts = result.scores.get("parts_px", {})
-    side = None
-    if "handle" in parts and "body" in parts:
-        side = "right" if parts["handle"][0] > parts["body"][0] else "left"
-    return {**{k: result.scores.get(k) for k in ("photo_iou", "depth_median_mm", "ground_elevation_deg")},
-            "has_handle": result.params["has_handle"], "handle_side": side, "evaluations": result.evaluations,
-            "wall_time_s": round(result.wall_time_s, 1)}
-
-
-def sdf_showcase(out: Path) -> dict:
-    from ipm.generators import get_generator
-    from ipm.io.export import export_mesh
-    from ipm.jacobian import check_sdf_jacobian, sdf_jacobian
-    from ipm.render.preview import write_preview
-
-    rows = {}
-    for name in ("csg", "chair", "mug", "vase"):
-        g = get_generator(name)
-        values = g.values()
-        mesh = g.to_mesh(values, resolution=128)
-        export_mesh(mesh, out / "sdf" / f"{name}.glb", g.metadata(values))
-        write_preview(mesh, out / "sdf" / f"{name}.png")
-        lo, hi = g.tree.bounds()
-        pts = torch.rand(2000, 3, dtype=torch.float64) * torch.as_tensor(hi - lo + 0.2) + torch.as_tensor(lo - 0.1)
-        J = sdf_jacobian(g.tree.sdf, g.tree.theta(), pts)
-        chk = check_sdf_jacobian(g.tree.sdf, g.tree.theta(), pts, J=J)
-        rows[name] = {"faces": mesh.n_faces, "watertight": bool(mesh.to_trimesh().is_watertight),
-                      "jacobian": list(J.shape), "max_rel_error_vs_fd": chk.max_rel_error}
-    return rows
-
-
-def subdivision_showcase(out: Path) -> dict:
-    """The fitted mug at the dishes generator's low detail, subdivided twice by each scheme; mean and largest
-    distance of the subdivided vertices to the same mug at 4x the detail (libigl, exact point-to-triangle)."""
-    import igl
-
-    from ipm.generators import get_generator
-    from ipm.generators.dishes import resolve_lod
-    from ipm.io.export import export_mesh
-    from ipm.subdiv import SCHEMES
-    from ipm.subdiv.pairs import fine_lod
-    from ipm.types import TriMesh
-
-    gen = get_generator("dishes")
-    values = json.loads((out / "mug_fit" / "params.json").read_text())["params"]
-    theta, d = gen.split(gen.spec.validate(values), torch.float64)
-    low = resolve_lod("low")
-    coarse = gen.mesh(theta, d, low).detach()
-    fine = gen.mesh(theta, d, fine_lod(low, 4)).detach()
-    FV, FF = fine.verts.numpy(), fine.faces.numpy()
-    (out / "subdivision").mkdir(exist_ok=True)
-    rows = {}
-    for name in ("midpoint", "loop", "neural"):
-        t0 = time.perf_counter()
-        with torch.no_grad():
-            v, f = SCHEMES.get(name).subdivide(coarse.verts, coarse.faces.numpy(), 2)
-        ms = 1e3 * (time.perf_counter() - t0)
-        dist = np.sqrt(igl.point_mesh_squared_distance(v.numpy(), FV, FF)[0])
-        export_mesh(TriMesh(v, torch.as_tensor(f)), out / "subdivision" / f"mug_{name}.ply", sidecar=False)
-        rows[name] = {"vertices": int(v.shape[0]), "mean": float(dist.mean()), "max": float(dist.max()),
-                      "ms": round(ms, 1)}
-    rows["coarse_vertices"] = coarse.n_verts
-    (out / "subdivision" / "scores.json").write_text(json.dumps(rows, indent=2) + "\n")
-    return rows
-
-
-def curves_showcase(out: Path) -> dict:
-    """The real bottle's side view: a 2D profile fitted and revolved, scored against the scan; the outline
-    of the same silhouette drawn as a line and vectorized."""
-    import cv2
-    from skimage.measure import find_contours
-
-    from ipm.curves import VectorizeSettings, render_strokes, to_svg, vectorize
-    from ipm.files import write_text
-    from ipm.generators.sdftree import SdfTreeGenerator
-    from ipm.io.export import export_mesh
-    from ipm.io.masks import write_mask
-    from ipm.io.meshes import load_mesh
-    from ipm.metrics import shape_scores
-    from ipm.optim.fit2d import Fit2DSettings, fit_2d, lifted, profile_start
-    from ipm.render.camera import orbit_camera
-    from ipm.render.raster import rasterize_mesh
-    from ipm.sdf.tree import tree_from_json
-    from ipm.viz.overlay import overlay
-
-    d = out / "curves"
-    d.mkdir(exist_ok=True)
-    scan = load_mesh(BOTTLE, up="z")
-    size, dist, fov = 192, 60.0, 2.2  # nearly orthographic
-    cam = orbit_camera(0.0, 0.0, dist, fov_deg=fov, width=size)
-    mask = rasterize_mesh(scan, cam.to(torch.float64)).mask.numpy()
-    write_mask(d / "bottle_side.png", mask)
-    res = fit_2d(profile_start(mask, 12), mask, Fit2DSettings(mode="profile", steps=400))
-    overlay(mask, res.mask, title="profile fit: target red, fit green").save(d / "profile_overlay.png", "PNG")
-    k = size / (2 * dist * np.tan(np.radians(fov / 2)))
-    tree = lifted(res, pixels_per_unit=k, center_px=(size / 2, size / 2))
-    write_text(d / "bottle_lifted.json", json.dumps(tree, indent=1) + "\n")
-    gen = SdfTreeGenerator(tree_from_json(tree))
-    solid = gen.to_mesh(gen.spec.defaults(), resolution=128)
-    export_mesh(solid, d / "bottle_revolved.obj", sidecar=False)
-    sc = shape_scores(solid, scan, normalize=False)
-    # the silhouette's outline as a line drawing (anti-aliased, 3 px)
-    ink = np.zeros((size, size), np.uint8)
-    for c in find_contours(mask.astype(float), 0.5):
-        pts = np.round(c[:, ::-1] * 16).astype(np.int32)  # (x, y), 4 bits of subpixel
-        cv2.polylines(ink, [pts], True, 255, thickness=3, lineType=cv2.LINE_AA, shift=4)
-    ink_f = ink.astype(np.float64) / 255.0
-    write_mask(d / "outline.png", ink_f > 0.5)
-    t0 = time.perf_counter()
-    v = vectorize(ink_f, VectorizeSettings())
-    secs = time.perf_counter() - t0
-    write_text(d / "outline.svg", to_svg(v))
-    strokes = render_strokes(v, v.size, v.width)
-    inked = ink_f > 0.5
-    return {"profile_iou": res.iou, "profile_s": round(res.seconds, 1), "fscore@0.02": sc.fscore_002,
-            "chamfer_l1": sc.chamfer_l1, "iou_3d": sc.iou_3d, "curves": len(v.curves),
-            "closed": sum(c.closed for c in v.curves), "junctions": len(v.junctions), "endpoints": len(v.endpoints),
-            "rerender_iou": float((strokes & inked).sum() / max((strokes | inked).sum(), 1)),
-            "vectorize_s": round(secs, 1)}
-
-
-def structure_showcase(out: Path) -> dict:
-    """The real armchair's tree searched from its mesh, scored in 16 held-out views against the scan."""
-    from ipm.bench.protocol import render_masks
-    from ipm.fitting import fit_structure
-    from ipm.io.meshes import load_mesh
-    from ipm.metrics import mask_iou
-    from ipm.render.camera import heldout_views
-
-    run = out / "structure"
-    if run.exists():
-        import shutil
-
-        shutil.rmtree(run)
-    res = fit_structure(target_mesh=ARMCHAIR, up="y", run_dir=run, budget=STRUCTURE_BUDGET, seed=0)
-    cams = heldout_views(256)
-    scan = load_mesh(ARMCHAIR, up="y")  # in the protocol's unit sphere
-    pred = res.mesh()  # on the scan, in its own frame: into the same sphere
-    frame = res.scores["frame"]
-    center, scale = torch.tensor(frame["center"], dtype=pred.verts.dtype), frame["scale"]
-    pred = type(pred)((pred.verts.to(center.dtype) - center) * scale, pred.faces)
-    iou = float(np.mean([mask_iou(a, b) for a, b in zip(render_masks(pred, cams), render_masks(scan, cams))]))
-    return {**res.scores, "evaluations": res.evaluations, "wall_time_s": res.wall_time_s, "heldout_iou": iou}
-
-
-def main() -> None:
-    ap = argparse.ArgumentParser(description="ipm demo")
-    ap.add_argument("out", nargs="?", default="results/demo")
-    ap.add_argument("--budget", type=int, default=200)
-    ap.add_argument("--size", type=int, default=128)
-    a = ap.parse_args()
-    from ipm import threads
-
-    threads.ask()  # one thread unless IPM_THREADS says otherwise (ipm.threads)
-    out = Path(a.out)
-    out.mkdir(parents=True, exist_ok=True)
-    torch.manual_seed(0)
-    print("fitting the dishes generator to 2 masks of a real mug scan ...", flush=True)
-    scores = fit_real_mug(out, a.budget, a.size)
-    print(f"  mask IoU on the input views: {', '.join(f'{v:.3f}' for v in scores['input_view_iou'])}")
-    print(f"  held-out silhouette IoU (16 views): {scores['heldout_iou_mean']:.3f}")
-    print(f"  F-score @0.02 / @0.05: {scores['fscore@0.02']:.3f} / {scores['fscore@0.05']:.3f}, "
-          f"Chamfer-L1 {scores['chamfer_l1']:.4f}, 3D IoU {scores['iou_3d']:.3f}")
-    print(f"  {scores['evaluations']} evaluations in {scores['wall_time_s']} s")
-    print("beyond silhouettes (#13): a photo's mask from a box, and the deferred renderer ...", flush=True)
-    b = beyond_silhouettes(out)
-    print(f"  GrabCut mask of the teal mug in the ClearGrasp photo: {b['mask_pixels']} px in {b['mask_s']} s")
-    print(f"  deferred render of the fit ({b['faces']} faces, 256 px), image + gradient w.r.t. vertices: "
-          f"{b['render_ms']} ms (gradient norm {b['grad_norm']:.3g})")
-    print("  fitting the mug to the photo, its box, depth map and intrinsics ...", flush=True)
-    p = fit_photo(out)
-    print(f"  photo mask IoU {p['photo_iou']:.3f}, median depth error {p['depth_median_mm']:.1f} mm, "
-          f"handle {'on, ' + str(p['handle_side']) if p['has_handle'] else 'off'}, camera elevation held at "
-          f"{p['ground_elevation_deg']} deg (the table), {p['evaluations']} evaluations in {p['wall_time_s']} s")
-    print("subdivision (#14): the fitted mug's coarse mesh, two levels, against its 4x finer surface ...", flush=True)
-    sub = subdivision_showcase(out)
-    for name in ("midpoint", "loop", "neural"):
-        r = sub[name]
-        print(f"  {name:8s} {sub['coarse_vertices']} -> {r['vertices']} vertices in {r['ms']} ms: distance to the "
-              f"finer surface mean {r['mean']:.4f}, max {r['max']:.4f}")
-    print("curves and 2D fits (#15): a real bottle's side view, its profile revolved; its outline vectorized ...",
-          flush=True)
-    cv = curves_showcase(out)
-    print(f"  profile fit: side-view IoU {cv['profile_iou']:.3f} in {cv['profile_s']} s; revolved against the scan: "
-          f"F-score @0.02 {cv['fscore@0.02']:.3f}, Chamfer-L1 {cv['chamfer_l1']:.4f}, 3D IoU {cv['iou_3d']:.3f}")
-    print(f"  outline vectorized in {cv['vectorize_s']} s: {cv['curves']} curve(s) ({cv['closed']} closed), "
-          f"{cv['junctions']} junctions, {cv['endpoints']} endpoints; SVG re-rendered IoU {cv['rerender_iou']:.3f}")
-    print("structure recovery (#16): the tree of a real armchair searched from its mesh ...", flush=True)
-    st = structure_showcase(out)
-    print(f"  {st['structure']}: {st['nodes']} nodes, held-out silhouette IoU {st['heldout_iou']:.3f}, "
-          f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
-    print("universal SDF generator: meshes and Jacobians ...", flush=True)
-    for name, r in sdf_showcase(out).items():
-        print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
-              f"max rel. error vs FD {r['max_rel_error_vs_fd']:.1e}")
-    print(f"\nResults: {out.resolve()}")
-    print("  mug_fit/overlay_000.png, overlay_001.png (target red, fit green), loss.png, result.json, scores.json")
-    print("  mug_masks/ (the input masks), sdf/*.glb and *.png (generator meshes and previews)")
-    print("  beyond_silhouettes/: photo_mask.png and its overlay; the fit's deferred shading, depth and normals;")
-    print("  beyond_silhouettes/photo_fit/overlay_photo.png (the photo fit's outline over the photo), result.json")
-    print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
-    print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
-          "bottle_revolved.obj; outline.png and outline.svg")
-    print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, structures.jsonl "
-          "(every tree tried), result.json")
-
-
-if __name__ == "__main__":
-    main()
+        out.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(0)
+        out.mkdir(parents=True, exist_ok=True)
+        torch.manual_seed(0)
+        print("fitting the dishes generator to 2 masks of a real mug scan ...", flush=True)
+        scores = S.fit_real_mug(out, budget, size)
+        print(f"  mask IoU on the input views: {', '.join(f'{v:.3f}' for v in scores['input_view_iou'])}")
+        print(f"  held-out silhouette IoU (16 views): {scores['heldout_iou_mean']:.3f}")
+        print(f"  F-score @0.02 / @0.05: {scores['fscore@0.02']:.3f} / {scores['fscore@0.05']:.3f}, "
+              f"Chamfer-L1 {scores['chamfer_l1']:.4f}, 3D IoU {scores['iou_3d']:.3f}")
+        print(f"  {scores['evaluations']} evaluations in {scores['wall_time_s']} s")
+        print("beyond silhouettes (#13): a photo's mask from a box, and the deferred renderer ...", flush=True)
+        b = S.beyond_silhouettes(out)
+        print(f"  GrabCut mask of the teal mug in the ClearGrasp photo: {b['mask_pixels']} px in {b['mask_s']} s")
+        print(f"  deferred render of the fit ({b['faces']} faces, 256 px), image + gradient w.r.t. vertices: "
+              f"{b['render_ms']} ms (gradient norm {b['grad_norm']:.3g})")
+        print("  fitting the mug to the photo, its box, depth map and intrinsics ...", flush=True)
+        p = S.fit_photo(out)
+        print(f"  photo mask IoU {p['photo_iou']:.3f}, median depth error {p['depth_median_mm']:.1f} mm, "
+              f"handle {'on, ' + str(p['handle_side']) if p['has_handle'] else 'off'}, camera elevation held at "
+              f"{p['ground_elevation_deg']} deg (the table), {p['evaluations']} evaluations in {p['wall_time_s']} s")
+        print("subdivision (#14): the fitted mug's coarse mesh, two levels, against its 4x finer surface ...",
+              flush=True)
+        sub = S.subdivision_showcase(out)
+        for name in ("midpoint", "loop", "neural"):
+            r = sub[name]
+            print(f"  {name:8s} {sub['coarse_vertices']} -> {r['vertices']} vertices in {r['ms']} ms: distance to the "
+                  f"finer surface mean {r['mean']:.4f}, max {r['max']:.4f}")
+        print("curves and 2D fits (#15): a real bottle's side view, its profile revolved; its outline vectorized ...",
+              flush=True)
+        cv = S.curves_showcase(out)
+        print(f"  profile fit: side-view IoU {cv['profile_iou']:.3f} in {cv['profile_s']} s; revolved against the "
+              f"scan: F-score @0.02 {cv['fscore@0.02']:.3f}, Chamfer-L1 {cv['chamfer_l1']:.4f}, "
+              f"3D IoU {cv['iou_3d']:.3f}")
+        print(f"  outline vectorized in {cv['vectorize_s']} s: {cv['curves']} curve(s) ({cv['closed']} closed), "
+              f"{cv['junctions']} junctions, {cv['endpoints']} endpoints; SVG re-rendered IoU {cv['rerender_iou']:.3f}")
+        print("structure recovery (#16): the tree of a real armchair searched from its mesh ...", flush=True)
+        st = S.structure_showcase(out)
+        print(f"  {st['structure']}: {st['nodes']} nodes, held-out silhouette IoU {st['heldout_iou']:.3f}, "
+              f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
+        print("universal SDF generator: meshes and Jacobians ...", flush=True)
+        for name, r in S.sdf_showcase(out).items():
+            print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
+                  f"max rel. error vs FD {r['max_rel_error_vs_fd']:.1e}")
+        print(f"\nResults: {out.resolve()}")
+        print("  mug_fit/overlay_000.png, overlay_001.png (target red, fit green), loss.png, result.json, scores.json")
+        print("  mug_masks/ (the input masks), sdf/*.glb and *.png (generator meshes and previews)")
+        print("  beyond_silhouettes/: photo_mask.png and its overlay; the fit's deferred shading, depth and normals;")
+        print("  beyond_silhouettes/photo_fit/overlay_photo.png (the photo fit's outline over the photo), result.json")
+        print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
+        print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
+              "bottle_revolved.obj; outline.png and outline.svg")
+        print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
+              "structures.jsonl (every tree tried), result.json")
