@@ -84,16 +84,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
     (:func:`ipm.io.runs.first_run`; an interruption keeps the records, a run to resume); a resume that
     fails keeps the folder's run resumable. The final files are written all together or not at all."""
     from ipm.io.fit_targets import TargetFiles, load_target
-    from ipm.io.runs import (
-        SETTINGS,
-        TRAJECTORY,
-        Trajectory,
-        final_files,
-        first_run,
-        read_run_file,
-        read_trajectory,
-        write_json,
-    )
+    from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, final_files, first_run, write_json
     from ipm.optim.evaluator import ReplayMismatch
     from ipm.optim.fit import FitSettings, hard_scores, run_fit
     from ipm.optim.problem import Problem
@@ -101,32 +92,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
     replay: list[dict] = []
     run_dir = Path(run_dir) if run_dir is not None else None
     if resume:
-        if run_dir is None:
-            raise InputError("--resume: expected a run folder, got none")
-        saved = read_run_file(run_dir)
-        where = f"--resume: run settings {run_dir / SETTINGS}"
-        library = library or saved.library
-        if generator is None:
-            generator = saved.source or saved.generator
-        gen = _generator(generator, library)
-        if gen.name != saved.generator:
-            raise InputError(f"--resume {run_dir}: expected the run's generator {saved.generator!r}, got {gen.name!r}")
-        source = saved.source
-        try:
-            cfg = _settings_from_json(saved.settings)
-            cfg.check()
-        except InputError as e:
-            raise InputError(f"{where}: settings: {e}") from None
-        saved_files = saved.target if saved.target is not None else {
-            k: getattr(saved, k) for k in ("masks", "target_mesh", "up") if getattr(saved, k) is not None}
-        try:
-            files = TargetFiles.from_json(saved_files)
-        except InputError as e:
-            raise InputError(f"{where}: target: {e}") from None
-        try:
-            replay = read_trajectory(run_dir / TRAJECTORY)
-        except InputError as e:
-            raise InputError(f"--resume: {e}") from None
+        gen, source, library, cfg, files, replay = _resumed(run_dir, generator, library)
     else:
         if generator is None:
             raise InputError("expected a generator: a name, a tree file or a Generator")
@@ -134,13 +100,10 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
         source = _source(generator) if isinstance(generator, str) else None
         library = [str(Path(d).resolve()) for d in library] if library else None
 
-        def opt(p):  # absolute, so that the run resumes from any working folder
-            return None if p is None else str(Path(p).resolve())
-
-        files = TargetFiles(masks=opt(masks), target_mesh=opt(target_mesh), up=up, depth=opt(depth),
-                            depth_scale=depth_scale, parts=opt(parts), image=opt(image), mask=opt(mask),
-                            box=None if box is None else tuple(int(v) for v in box), intrinsics=opt(intrinsics),
-                            size=photo_size, ground=ground)
+        files = TargetFiles(masks=_absolute(masks), target_mesh=_absolute(target_mesh), up=up,
+                            depth=_absolute(depth), depth_scale=depth_scale, parts=_absolute(parts),
+                            image=_absolute(image), mask=_absolute(mask), intrinsics=_absolute(intrinsics),
+                            box=None if box is None else tuple(int(v) for v in box), size=photo_size, ground=ground)
         if files.image is not None and settings.get("camera", "known") != "fit":
             settings = {**settings, "camera": "fit"}  # a photo has no cameras.json
         cfg = FitSettings(**settings)
@@ -175,6 +138,40 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
         else:
             pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True, mesh=mesh)
     return replace(result, scores=scores, pose=pose, run_dir=None if run_dir is None else str(run_dir), shape=mesh)
+
+
+def _resumed(run_dir: Path | None, generator, library: list[str] | None):
+    """What a resumed fit needs from its run folder: ``(generator, source, library, settings, target files,
+    the records to replay)``, each checked (:mod:`ipm.io.runs`); :class:`InputError` names the file."""
+    from ipm.io.fit_targets import TargetFiles
+    from ipm.io.runs import SETTINGS, TRAJECTORY, read_run_file, read_trajectory
+
+    if run_dir is None:
+        raise InputError("--resume: expected a run folder, got none")
+    saved = read_run_file(run_dir)
+    where = f"--resume: run settings {run_dir / SETTINGS}"
+    library = library or saved.library
+    if generator is None:
+        generator = saved.source or saved.generator
+    gen = _generator(generator, library)
+    if gen.name != saved.generator:
+        raise InputError(f"--resume {run_dir}: expected the run's generator {saved.generator!r}, got {gen.name!r}")
+    try:
+        cfg = _settings_from_json(saved.settings)
+        cfg.check()
+    except InputError as e:
+        raise InputError(f"{where}: settings: {e}") from None
+    saved_files = saved.target if saved.target is not None else {
+        k: getattr(saved, k) for k in ("masks", "target_mesh", "up") if getattr(saved, k) is not None}
+    try:
+        files = TargetFiles.from_json(saved_files)
+    except InputError as e:
+        raise InputError(f"{where}: target: {e}") from None
+    try:
+        replay = read_trajectory(run_dir / TRAJECTORY)
+    except InputError as e:
+        raise InputError(f"--resume: {e}") from None
+    return gen, saved.source, library, cfg, files, replay
 
 
 def _generator(generator, library: list[str] | None):
@@ -353,81 +350,28 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
     the final files are written all together or not at all. Returns a :class:`~ipm.types.FitResult` of kind
     "structure": its ``tree`` (placed), ``scores`` (``result.json``'s: structure, nodes, primitives, fit_iou,
     score, rounds, frame, ...) and :meth:`~ipm.types.FitResult.mesh`."""
-    from ipm.files import refused, write_text
-    from ipm.io.runs import (
-        RESULT,
-        SETTINGS,
-        StructureRunFile,
-        Trajectory,
-        checked,
-        final_files,
-        first_run,
-        read_json_file,
-        read_json_lines,
-        read_run_file,
-        write_json,
-    )
-    from ipm.optim.structure import StructureSettings, count_nodes, mask_samples, mesh_samples, primitive_counts
+    from ipm.io.runs import SETTINGS, Trajectory, first_run, write_json
+    from ipm.optim.structure import StructureSettings, count_nodes, primitive_counts
     from ipm.optim.structure import search as run_search
     from ipm.optim.structure.program import signature, structure
-    from ipm.optim.structure.search import State, verify_state
+    from ipm.optim.structure.search import verify_state
     from ipm.sdf.tree import load_tree, tree_to_json
 
     run_dir = Path(run_dir) if run_dir is not None else None
     state = None
     ckpt = None if run_dir is None else run_dir / STRUCTURE_CHECKPOINT
     if resume:
-        if run_dir is None:
-            raise InputError("--resume: expected a run folder, got none")
-        saved = read_run_file(run_dir, StructureRunFile)
-        try:
-            cfg = StructureSettings.from_json(saved.structure)
-        except InputError as e:
-            raise InputError(f"--resume: run settings {run_dir / SETTINGS}: {e}") from None
-        target_mesh, up, masks, start = saved.target.target_mesh, saved.target.up, saved.target.masks, saved.start
-        if ckpt.is_file():
-            where = f"--resume: structure search checkpoint {ckpt}"
-            try:
-                state = read_json_file(ckpt, "structure search checkpoint")
-            except InputError as e:
-                raise InputError(f"--resume: {e}") from None
-            checked(state, State, where)
-            try:
-                records = read_json_lines(run_dir / STRUCTURE_TRAJECTORY, "structure search records")
-            except InputError as e:
-                raise InputError(f"--resume: {e}") from None
-            if len(records) < state["records"]:
-                raise InputError(f"{where}: records: expected at most the {len(records)} records of "
-                                 f"{STRUCTURE_TRAJECTORY}, got {state['records']}")
+        cfg, target_mesh, up, masks, start, state = _structure_resumed(run_dir)
     else:
         cfg = StructureSettings(**settings)
-
-        def opt(p):  # absolute, so that the run resumes from any working folder
-            return None if p is None else str(Path(p).resolve())
-
-        target_mesh, masks, start = opt(target_mesh), opt(masks), opt(start)
+        target_mesh, masks, start = _absolute(target_mesh), _absolute(masks), _absolute(start)
     cfg.check()
     if (target_mesh is None) == (masks is None):
         raise InputError("structure search: expected one target, a mesh or a mask set of K >= 2 views")
     start_tree = None
     if start is not None and state is None:  # a checkpoint's beam replaces the start
         start_tree = tree_to_json(load_tree(start))["tree"]
-    frame = None
-    if target_mesh is not None:
-        from ipm.io.meshes import load_mesh
-        from ipm.metrics import mesh_arrays, unit_sphere_frame
-
-        raw = load_mesh(Path(target_mesh), up=up, normalize=False)
-        center, scale = unit_sphere_frame(mesh_arrays(raw)[0])
-        frame = {"center": [float(c) for c in center], "scale": float(scale)}
-        mesh = load_mesh(Path(target_mesh), up=up, normalize=True)
-        samples = mesh_samples(mesh, surface=cfg.surface, volume=cfg.volume, grid=cfg.grid, seed=cfg.seed)
-    else:
-        from ipm.io.fit_targets import TargetFiles, load_target
-
-        target, _ = load_target(TargetFiles(masks=str(masks)))
-        samples = mask_samples(target.masks.cpu().numpy(), target.cameras, volume=cfg.volume, grid=cfg.grid,
-                               seed=cfg.seed)
+    samples, frame = _structure_samples(target_mesh, up, masks, cfg)
     samples = samples.to(device=device, dtype=torch.float32)
     if state is not None:
         try:
@@ -442,12 +386,7 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
                 write_json(run_dir / SETTINGS, {"structure": cfg.to_json(), "start": start,
                                                 "target": {"target_mesh": target_mesh, "up": up, "masks": masks}})
             sink = Trajectory(run_dir / STRUCTURE_TRAJECTORY, keep=int(state["records"]) if state else 0)
-
-            def checkpoint(st: dict) -> None:
-                try:
-                    write_text(ckpt, json.dumps(st) + "\n")
-                except OSError as e:
-                    raise refused(ckpt, e) from None
+            checkpoint = _checkpoint_writer(ckpt)
         try:
             res = run_search(samples, cfg, start=start_tree, state=state, checkpoint=checkpoint, record=sink,
                              progress=progress)
@@ -463,24 +402,108 @@ def fit_structure(*, target_mesh: str | Path | None = None, up: str = "y", masks
                "fit_iou_of": "occupancy on the sample grid" if masks is None else "silhouettes at the mask rays",
                "score": res.score, "evaluations": res.evaluations, "wall_time_s": round(res.wall_time_s, 3),
                "rounds": res.rounds, "stopped": res.stopped, "frame": frame}
-        from ipm.generators.sdftree import SdfTreeGenerator
-        from ipm.sdf.tree import tree_from_json
+        result = _structure_result(res, placed, out, run_dir)
+    return result
 
-        gen = SdfTreeGenerator(tree_from_json({"tree": placed}))
-        values = gen.spec.defaults()
-        shape = gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION)
-        if run_dir is not None:
-            from ipm.io.export import export_mesh
 
-            out["run"] = str(run_dir)
-            with final_files(run_dir) as staged:  # the final files all at once, or none of them
-                write_json(staged / "tree.json", {"tree": placed})
-                export_mesh(shape, staged / "mesh.obj", gen.metadata(values), sidecar=False)
-                write_json(staged / RESULT, out)
+def _structure_samples(target_mesh: str | None, up: str, masks: str | None, cfg):
+    """``(samples, frame)``: the structure search's target samples (:mod:`ipm.optim.structure.samples`) and,
+    for a mesh target, the frame that took it to DESIGN.md's unit sphere (``{"center", "scale"}``; None for
+    masks, whose cameras' frame is the target's own)."""
+    from ipm.optim.structure import mask_samples, mesh_samples
+
+    if target_mesh is not None:
+        from ipm.io.meshes import load_mesh
+        from ipm.metrics import mesh_arrays, unit_sphere_frame
+
+        raw = load_mesh(Path(target_mesh), up=up, normalize=False)
+        center, scale = unit_sphere_frame(mesh_arrays(raw)[0])
+        mesh = load_mesh(Path(target_mesh), up=up, normalize=True)
+        samples = mesh_samples(mesh, surface=cfg.surface, volume=cfg.volume, grid=cfg.grid, seed=cfg.seed)
+        return samples, {"center": [float(c) for c in center], "scale": float(scale)}
+    from ipm.io.fit_targets import TargetFiles, load_target
+
+    target, _ = load_target(TargetFiles(masks=str(masks)))
+    return mask_samples(target.masks.cpu().numpy(), target.cameras, volume=cfg.volume, grid=cfg.grid,
+                        seed=cfg.seed), None
+
+
+def _structure_result(res, placed: dict, out: dict, run_dir: Path | None) -> FitResult:
+    """The structure search's result (its tree ``placed`` in the target's frame, meshed) as a FitResult, and
+    with ``run_dir`` its final files (tree.json, mesh.obj, result.json: all at once, or none)."""
+    from ipm.generators.sdftree import SdfTreeGenerator
+    from ipm.io.runs import RESULT, final_files, write_json
+    from ipm.sdf.tree import tree_from_json
+
+    gen = SdfTreeGenerator(tree_from_json({"tree": placed}))
+    values = gen.spec.defaults()
+    shape = gen.to_mesh(values, resolution=STRUCTURE_RESOLUTION)
+    if run_dir is not None:
+        from ipm.io.export import export_mesh
+
+        out["run"] = str(run_dir)
+        with final_files(run_dir) as staged:  # the final files all at once, or none of them
+            write_json(staged / "tree.json", {"tree": placed})
+            export_mesh(shape, staged / "mesh.obj", gen.metadata(values), sidecar=False)
+            write_json(staged / RESULT, out)
     scores = {k: v for k, v in out.items() if k not in ("evaluations", "wall_time_s", "run")}
     return FitResult(generator=gen.name, params=values, loss=float(res.score), evaluations=res.evaluations,
                      wall_time_s=res.wall_time_s, scores=scores, run_dir=out.get("run"), kind="structure",
                      tree=placed, shape=shape)
+
+
+def _absolute(p) -> str | None:
+    """A path given to a fit as an absolute string (None stays None), so that its run resumes from any working
+    folder."""
+    return None if p is None else str(Path(p).resolve())
+
+
+def _checkpoint_writer(path: Path):
+    """``write(state)``: the structure search's checkpoint written to ``path`` atomically; a refusal of the OS
+    (a full disk) names the file."""
+    from ipm.files import refused, write_text
+
+    def write(state: dict) -> None:
+        try:
+            write_text(path, json.dumps(state) + "\n")
+        except OSError as e:
+            raise refused(path, e) from None
+
+    return write
+
+
+def _structure_resumed(run_dir: Path | None):
+    """What a resumed structure search needs from its run folder: ``(settings, target mesh, up, masks, start,
+    the checkpoint's state or None)``, each checked against its schema; :class:`InputError` names the file."""
+    from ipm.io.runs import SETTINGS, StructureRunFile, checked, read_json_file, read_json_lines, read_run_file
+    from ipm.optim.structure import StructureSettings
+    from ipm.optim.structure.search import State
+
+    if run_dir is None:
+        raise InputError("--resume: expected a run folder, got none")
+    saved = read_run_file(run_dir, StructureRunFile)
+    try:
+        cfg = StructureSettings.from_json(saved.structure)
+    except InputError as e:
+        raise InputError(f"--resume: run settings {run_dir / SETTINGS}: {e}") from None
+    state = None
+    ckpt = run_dir / STRUCTURE_CHECKPOINT
+    if ckpt.is_file():
+        where = f"--resume: structure search checkpoint {ckpt}"
+        try:
+            state = read_json_file(ckpt, "structure search checkpoint")
+        except InputError as e:
+            raise InputError(f"--resume: {e}") from None
+        checked(state, State, where)
+        try:
+            records = read_json_lines(run_dir / STRUCTURE_TRAJECTORY, "structure search records")
+        except InputError as e:
+            raise InputError(f"--resume: {e}") from None
+        if len(records) < state["records"]:
+            raise InputError(f"{where}: records: expected at most the {len(records)} records of "
+                             f"{STRUCTURE_TRAJECTORY}, got {state['records']}")
+    t = saved.target
+    return cfg, t.target_mesh, t.up, t.masks, saved.start, state
 
 
 def framed(tree: dict, frame: dict) -> dict:
