@@ -65,9 +65,11 @@ def read_npy(path: str | Path, what: str = "array file"):
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
+    import tokenize
+
     try:
         arr = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
+    except (ValueError, OSError, EOFError, SyntaxError, tokenize.TokenError, RecursionError) as e:  # a bad header
         raise InputError(f"{what} {path}: expected a .npy array, got an unreadable file ({type(e).__name__})") from None
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiub":
         raise InputError(f"{what} {path}: expected an array of numbers, got {getattr(arr, 'dtype', type(arr))}")
