@@ -69,8 +69,10 @@ def check_drawing_size(path: Path) -> None:
     finally:
         Image.MAX_IMAGE_PIXELS = limit
     if w * h > MAX_PIXELS:
+        beyond = (f"; more than {limit:,} pixels, Pillow's decompression-bomb limit, are not even read"
+                  if limit and w * h > limit else "")
         raise UsageError(f"drawing {path}: {w}x{h} is {w * h:,} pixels; expected at most {MAX_PIXELS:,} "
-                         f"pixels (the limit, 2048x2048); scale the drawing down")
+                         f"pixels (the limit, 2048x2048{beyond}); scale the drawing down")
 
 
 def register(app: typer.Typer) -> None:
