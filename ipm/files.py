@@ -10,18 +10,26 @@ hundreds of digits) when they are parsed.
 Writing is atomic: a temporary file beside the target, then a rename into place, so no reader ever sees a
 half-written file. Files get the permissions an ordinary ``open(path, "w")`` would give (0666 less the
 umask), not the 0600 of a temporary file. When the OS refuses (read-only or full disk, no permission, a
-parent that is a file), the error names the *target* path, never the hidden temporary one.
+parent that is a file), the error names the *target* path, never the hidden temporary one. A failed write
+leaves nothing: its temporary file is removed, and so are the folders made for it.
+
+A command with several outputs writes them all or none: :func:`all_or_nothing` (files: an existing output
+is replaced only when every output is written) and :func:`staged_directory` (a folder of outputs, which
+may replace an earlier run's files as a whole). :func:`check_distinct` refuses, before any work, two
+outputs that are the same file.
 """
 
 from __future__ import annotations
 
 import contextlib
+import contextvars
+import errno
 import json
 import math
 import os
 import re
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from ipm.errors import InputError
@@ -101,9 +109,11 @@ def read_npy(path: str | Path, what: str = "array file"):
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{what} not found: {path}")
+    import tokenize
+
     try:
         arr = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
+    except (ValueError, OSError, EOFError, SyntaxError, tokenize.TokenError, RecursionError) as e:  # a bad header
         raise InputError(f"{what} {path}: expected a .npy array, got an unreadable file ({type(e).__name__})") from None
     if not isinstance(arr, np.ndarray) or arr.dtype.kind not in "fiub":
         raise InputError(f"{what} {path}: expected an array of numbers, got {getattr(arr, 'dtype', type(arr))}")
@@ -133,57 +143,187 @@ FILE_MODE = 0o666 & ~_umask()
 DIR_MODE = 0o777 & ~_umask()
 
 
-def refused(path: Path, e: OSError) -> InputError:
-    """The one-line error for an OS refusal to write ``path``."""
-    import errno
-
-    why = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
-           errno.EDQUOT: "disk quota exceeded", errno.ENOTDIR: "a parent is a file, not a folder",
-           errno.EEXIST: "a parent is a file, not a folder"}.get(e.errno, e.strerror or str(e))
-    return InputError(f"cannot write {path}: {why}")
+_WHY = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
+        errno.EDQUOT: "disk quota exceeded", errno.EFBIG: "file too large for the file system",
+        errno.ENOTDIR: "a parent is a file, not a folder", errno.EEXIST: "a parent is a file, not a folder",
+        errno.EACCES: "no permission", errno.EPERM: "not permitted", errno.ENAMETOOLONG: "file name too long",
+        errno.EISDIR: "a folder is in the way"}
 
 
-def make_parent(path: Path) -> None:
-    """Create ``path``'s folder; an OS refusal becomes an :class:`InputError` naming ``path``."""
+def why(e: OSError) -> str:
+    """The OS refusal ``e`` in a few words ("no space left on the device")."""
+    if e.errno in _WHY:
+        return _WHY[e.errno]
+    return e.strerror or (str(e).splitlines()[0] if str(e) else type(e).__name__)
+
+
+class Refused(InputError):
+    """An OS refusal to write ``path``: ``cannot write PATH: WHY``; ``error`` is the OS's error."""
+
+    def __init__(self, path: str | Path, error: OSError):
+        self.path, self.error = Path(path), error
+        super().__init__(f"cannot write {path}: {why(error)}")
+
+
+def refused(path: str | Path, e: OSError) -> Refused:
+    """The one-line error for an OS refusal to write ``path``: ``cannot write PATH: WHY``. It names the
+    output the user asked for, never the temporary file or staging folder the refusal came from."""
+    return Refused(path, e)
+
+
+def make_parent(path: Path) -> list[Path]:
+    """Create ``path``'s folder; returns the folders made (outermost first) so that a failed write can
+    take them back (:func:`remove_made`). An OS refusal becomes an :class:`InputError` naming ``path``."""
+    missing = []
+    d = Path(path).parent
+    while not os.path.lexists(d) and d != d.parent:
+        missing.append(d)
+        d = d.parent
     try:
-        path.parent.mkdir(parents=True, exist_ok=True)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
+        remove_made(missing)
         raise refused(path, e) from None
+    return missing[::-1]
+
+
+def remove_made(folders) -> None:
+    """Remove the folders a failed command made (innermost first), each only if it is empty."""
+    for d in sorted(map(Path, folders), key=lambda p: len(p.parts), reverse=True):
+        with contextlib.suppress(OSError):
+            d.rmdir()
+
+
+def _unlink(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        os.unlink(path)
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether paths ``a`` and ``b`` name one file: the same path once symlinks and ``..`` are resolved,
+    or, when both exist, hard links of one file."""
+    with contextlib.suppress(OSError):
+        if os.path.exists(a) and os.path.exists(b):
+            return os.path.samefile(a, b)
+    return os.path.realpath(a) == os.path.realpath(b)
+
+
+def check_distinct(outputs: dict[str, str | Path | None]) -> None:
+    """Refuse (:class:`InputError`, before any work) two outputs of one command that are the same file:
+    the second write would silently replace the first (``ipm mask --overlay m.png -o m.png``).
+    ``outputs`` maps each output's name in messages (``-o/--output``, ``--overlay``, "the parameter file
+    beside -o") to its path; ``None`` is an output not asked for."""
+    given = [(k, Path(v)) for k, v in outputs.items() if v is not None]
+    for i, (ka, a) in enumerate(given):
+        for kb, b in given[i + 1:]:
+            if same_file(a, b):
+                raise InputError(f"{ka} and {kb}: expected different files, got {b} for both")
+
+
+class _Outputs:
+    """The outputs of one :func:`all_or_nothing` block: their finished temporary files wait here for the
+    block to succeed, with the folders made for them."""
+
+    def __init__(self, paths: list[Path]):
+        self.paths = list(paths)
+        self.pending: list[tuple[Path, Path]] = []   # (temporary file, output)
+        self.made: list[Path] = []
+
+    def covers(self, path: Path) -> bool:
+        return any(same_file(path, p) for p in self.paths)
+
+    def commit(self) -> None:
+        """Rename every temporary file into place. An existing output is kept as a hard link until all are
+        in place, so that a rename refused half way puts every earlier output back as it was."""
+        done: list[tuple[Path, Path | None]] = []
+        try:
+            for tmp, path in self.pending:
+                backup = None
+                if os.path.lexists(path):
+                    backup = tmp.with_name(tmp.name + ".old")
+                    try:
+                        os.link(path, backup, follow_symlinks=False)
+                    except OSError:  # a file system without hard links: this one cannot be undone
+                        backup = None
+                try:
+                    os.chmod(tmp, FILE_MODE)
+                    os.replace(tmp, path)
+                except OSError as e:
+                    if backup is not None:
+                        _unlink(backup)
+                    raise refused(path, e) from None
+                done.append((path, backup))
+        except BaseException:
+            for path, backup in reversed(done):
+                with contextlib.suppress(OSError):
+                    if backup is not None:
+                        os.replace(backup, path)
+                    else:
+                        os.unlink(path)
+            raise
+        finally:
+            for _, backup in done:
+                if backup is not None:
+                    _unlink(backup)
+        self.pending.clear()
+
+    def discard(self) -> None:
+        for tmp, _ in self.pending:
+            _unlink(tmp)
+        self.pending.clear()
+        remove_made(self.made)
+
+
+_OUTPUTS: contextvars.ContextVar[_Outputs | None] = contextvars.ContextVar("ipm_outputs", default=None)
 
 
 @contextlib.contextmanager
 def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path in the target's folder; on success rename it to ``path``.
 
-    On any exception the temporary file is removed and ``path`` is left untouched. OS errors on the
-    temporary file (creating, writing, renaming it) are reported as :class:`InputError` on ``path``.
+    On any exception the temporary file is removed, the folders made for ``path`` are removed again and
+    ``path`` is left untouched. OS errors on the temporary file (creating, writing, renaming it; an error
+    that names no file, as a full disk's when a writer flushes, is taken to be the write's) are reported
+    as :class:`InputError` on ``path``. Inside an :func:`all_or_nothing` block that lists ``path`` the
+    rename waits for the block's end.
     """
     path = Path(path)
     if path.is_dir():
         raise InputError(f"output {path} is a folder; expected a file path")
-    make_parent(path)
+    outputs = _OUTPUTS.get()
+    deferred = outputs is not None and outputs.covers(path)
+    made = make_parent(path)
+    tmp = None
+    ok = False
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix + ".tmp",
-                                   dir=path.parent)
-    except OSError as e:
-        raise refused(path, e) from None
-    os.close(fd)
-    tmp = Path(tmp)
-    try:
+        try:
+            fd, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix + ".tmp",
+                                        dir=path.parent)
+        except OSError as e:
+            raise refused(path, e) from None
+        os.close(fd)
+        tmp = Path(name)
         try:
             yield tmp
         except OSError as e:
-            if e.filename is not None and Path(e.filename) == tmp:
+            if e.filename is None or Path(e.filename) == tmp:
                 raise refused(path, e) from None
             raise
-        try:
-            os.chmod(tmp, FILE_MODE)
-            os.replace(tmp, path)
-        except OSError as e:
-            raise refused(path, e) from None
+        if deferred:
+            outputs.pending.append((tmp, path))
+            outputs.made += made
+        else:
+            try:
+                os.chmod(tmp, FILE_MODE)
+                os.replace(tmp, path)
+            except OSError as e:
+                raise refused(path, e) from None
+        ok = True
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        if not ok:
+            if tmp is not None:
+                _unlink(tmp)
+            remove_made(made)
 
 
 def write_text(path: str | Path, text: str) -> Path:
@@ -199,52 +339,126 @@ def write_bytes(path: str | Path, data: bytes) -> Path:
 
 
 @contextlib.contextmanager
-def staged_directory(out: str | Path) -> Iterator[Path]:
-    """Yield an empty temporary folder beside ``out``; on success its files move into ``out`` (created
-    if needed; existing files of the same names are replaced, each atomically); on error it is removed
-    and ``out`` is left as it was."""
+def staged_directory(out: str | Path, *, replace: Callable[[str], bool] | None = None) -> Iterator[Path]:
+    """Yield an empty temporary folder beside ``out``; on success its entries move into ``out`` (created
+    if needed), on error it is removed and ``out`` is left as it was, with the folders made above it
+    removed again.
+
+    Into an existing ``out``: entries of the new names are replaced, and with ``replace`` (a test on
+    names) every existing entry it accepts is replaced as well, even when the new content has no entry of
+    that name (an earlier render's ``view_007.png`` when the new one has 4 views); other entries are
+    kept. The old entries wait in a hidden folder inside ``out`` until the new ones are all in place, so
+    that a rename refused half way puts ``out`` back as it was."""
     import shutil
 
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise InputError(f"output {out}: expected a folder, got a file")
-    make_parent(out)
+    made = make_parent(out)
+    ok = False
+    tmp = None
     try:
-        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
-    except OSError as e:
-        raise refused(out, e) from None
-    try:
+        try:
+            tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+        except OSError as e:
+            raise refused(out, e) from None
         try:
             yield tmp
         except OSError as e:
-            if e.filename is not None and Path(tmp) in Path(e.filename).parents:
+            if e.filename is None or Path(e.filename) == tmp:
                 raise refused(out, e) from None
+            if tmp in Path(e.filename).parents:
+                raise refused(out / Path(e.filename).relative_to(tmp), e) from None
+            raise
+        except Refused as e:  # a file of the staging folder: named as the output it was to become
+            if tmp in e.path.parents:
+                raise refused(out / e.path.relative_to(tmp), e.error) from None
             raise
         try:
-            for p in tmp.iterdir():
-                os.chmod(p, DIR_MODE if p.is_dir() else FILE_MODE)
-            if not out.exists():
-                os.chmod(tmp, DIR_MODE)
-                os.replace(tmp, out)
-            else:
-                for p in sorted(tmp.iterdir()):
-                    os.replace(p, out / p.name)
+            _move_in(tmp, out, replace)
         except OSError as e:
             raise refused(out, e) from None
+        ok = True
     finally:
-        if tmp.exists():
+        if tmp is not None and tmp.exists():
             shutil.rmtree(tmp, ignore_errors=True)
+        if not ok:
+            remove_made(made)
+
+
+def _move_in(tmp: Path, out: Path, replace: Callable[[str], bool] | None) -> None:
+    """:func:`staged_directory`'s commit: the entries of ``tmp`` into ``out`` (module docstring)."""
+    import shutil
+
+    for p in tmp.iterdir():
+        os.chmod(p, DIR_MODE if p.is_dir() else FILE_MODE)
+    if not out.exists():
+        os.chmod(tmp, DIR_MODE)
+        os.replace(tmp, out)
+        return
+    new = sorted(p.name for p in tmp.iterdir())
+    old = [n for n in sorted(os.listdir(out)) if n in new or (replace is not None and replace(n))]
+    backup = Path(tempfile.mkdtemp(prefix=".replaced.", suffix=".tmp", dir=out)) if old else None
+    moved: list[str] = []
+    placed: list[str] = []
+    try:
+        for n in old:
+            os.replace(out / n, backup / n)
+            moved.append(n)
+        for n in new:
+            os.replace(tmp / n, out / n)
+            placed.append(n)
+    except BaseException:
+        restored = True
+        for n in placed:
+            try:
+                os.replace(out / n, tmp / n)
+            except OSError:
+                restored = False
+        for n in moved:
+            try:
+                os.replace(backup / n, out / n)
+            except OSError:
+                restored = False
+        if backup is not None and restored:
+            shutil.rmtree(backup, ignore_errors=True)
+        raise
+    if backup is not None:
+        shutil.rmtree(backup, ignore_errors=True)
 
 
 @contextlib.contextmanager
-def all_or_nothing(*paths: str | Path) -> Iterator[None]:
-    """Several outputs written one after another (a mesh, its sidecar, a preview): if anything inside
-    fails, those of ``paths`` that did not exist before are removed again."""
-    before = {Path(p): Path(p).exists() for p in paths}
-    try:
+def all_or_nothing(*paths: str | Path | None) -> Iterator[None]:
+    """Several outputs of one command (a mesh, its sidecar, a preview), written all or none.
+
+    Every write to one of ``paths`` through :func:`atomic_path` inside the block (``write_text``,
+    ``export_mesh``, ``save_png``, ...) goes to its temporary file, and the renames into place wait for the
+    block to succeed: if anything inside fails, no output is replaced or created, the temporary files are
+    removed and so are the folders made for them. Paths that are the same file are refused
+    (:func:`check_distinct`; commands call it before their work). ``None`` entries are skipped. A block
+    inside another joins the outer one."""
+    targets = [Path(p) for p in paths if p is not None]
+    for i, a in enumerate(targets):
+        for b in targets[i + 1:]:
+            if same_file(a, b):
+                raise InputError(f"outputs: expected different files, got {b} twice")
+    outer = _OUTPUTS.get()
+    if outer is not None:
+        outer.paths += targets
         yield
+        return
+    outputs = _Outputs(targets)
+    before = {p: os.path.lexists(p) for p in targets}
+    token = _OUTPUTS.set(outputs)
+    try:
+        try:
+            yield
+        finally:
+            _OUTPUTS.reset(token)
+        outputs.commit()
     except BaseException:
-        for p, existed in before.items():
+        outputs.discard()
+        for p, existed in before.items():  # written by other means than atomic_path: taken back
             if not existed and p.is_file():
                 p.unlink()
         raise
@@ -252,9 +466,8 @@ def all_or_nothing(*paths: str | Path) -> Iterator[None]:
 
 def check_writable(path: str | Path) -> Path:
     """Refuse up front (:class:`InputError`) an output under a file or in a folder this process may not
-    write, so that a command fails before its work, not after."""
-    import os
-
+    write, so that a command fails before its work, not after. (A full disk shows only when writing; the
+    writers above take back what they wrote.)"""
     path = Path(path)
     anc = path.parent
     while not anc.exists() and anc != anc.parent:

@@ -14,6 +14,8 @@ sizes gives 0.93 to 0.94, and 0.5 (the default) gives 0.936, within 0.002 for bo
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ipm.errors import InputError
@@ -22,15 +24,16 @@ MIN_BOX = 8  # pixels a side
 
 
 def parse_box(text: str) -> tuple[int, int, int, int]:
-    """``"X0,Y0,X1,Y1"`` (pixels; x right, y down; X1, Y1 exclusive) as integers."""
+    """``"X0,Y0,X1,Y1"`` (pixels; x right, y down; X1, Y1 exclusive) as integers; values that are not
+    whole finite numbers (``inf``, ``1e400``, ``10.5``) are refused with one line."""
     parts = [p.strip() for p in str(text).split(",")]
     try:
-        box = tuple(int(round(float(p))) for p in parts)
+        values = [float(p) for p in parts]
     except ValueError:
-        box = ()
-    if len(box) != 4:
-        raise InputError(f"--box: expected X0,Y0,X1,Y1 in pixels, got {text!r}")
-    return box  # type: ignore[return-value]
+        values = []
+    if len(values) != 4 or not all(math.isfinite(v) and v == int(v) for v in values):
+        raise InputError(f"--box: expected X0,Y0,X1,Y1 as four whole numbers of pixels, got {text!r}")
+    return tuple(int(v) for v in values)  # type: ignore[return-value]
 
 
 def check_box(box, width: int, height: int) -> tuple[int, int, int, int]:

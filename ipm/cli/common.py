@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import errno
 import json
 import logging
 import sys
@@ -31,11 +30,14 @@ def error_line(msg: str) -> None:
 
 
 def os_error_line(e: OSError) -> str:
-    """One line for an OS refusal: what happened and to which file."""
-    what = {errno.ENOSPC: "no space left on the device", errno.EROFS: "read-only file system",
-            errno.EDQUOT: "disk quota exceeded"}.get(e.errno, e.strerror or type(e).__name__)
-    where = e.filename if e.filename is not None else ""
-    return f"{where}: {what}" if where else str(e).splitlines()[0] if str(e) else what
+    """One line for an OS refusal that reached the CLI: what happened and to which file (both files of a
+    refused rename). Writes through :mod:`ipm.files` come as :class:`InputError` ``cannot write PATH: ...``;
+    this is for the rest. An error that names no file says so rather than guess."""
+    from ipm.files import why
+
+    what = why(e)
+    where = " -> ".join(str(f) for f in (e.filename, getattr(e, "filename2", None)) if f is not None)
+    return f"{where}: {what}" if where else f"{what} (the system named no file)"
 
 
 class _StderrHandler(logging.Handler):

@@ -3,6 +3,9 @@
 The result file loads back with ``ipm generate OUT.json`` (and ``get_generator``). The mesh is
 normalized first (DESIGN.md: up axis, bounding-box center at the origin, farthest vertex at 1); the file's
 ``frame`` says how to undo it.
+
+The result, the ``--mesh`` and its ``.params.json`` sidecar are written all or none
+(:func:`ipm.files.all_or_nothing`); two of them that are the same file are refused before any work.
 """
 
 from __future__ import annotations
@@ -64,7 +67,8 @@ def register(app: typer.Typer) -> None:
         to: Annotated[str, typer.Option("--to", help="bsp (convex polytopes), perturb (quadric + perturbation "
                                                      "functions) or sdftree (the BSP as an SDF node tree)")],
         output: Annotated[Path, typer.Option("-o", "--output", help="result file (.json); loads back with "
-                                                                     "ipm generate")],
+                                                                     "ipm generate. With --mesh, both are "
+                                                                     "written or neither")],
         up: Annotated[str, typer.Option(help="up axis of the mesh file: y or z")] = "y",
         max_functions: Annotated[int | None, typer.Option("--max-functions", help="perturb: at most this many "
                                                           "perturbation functions [2000]")] = None,
@@ -91,6 +95,12 @@ def register(app: typer.Typer) -> None:
         check_output(output, (".json",))
         if mesh_out is not None:
             check_output(mesh_out, MESH_SUFFIXES)
+        from ipm.files import check_distinct
+        from ipm.io.export import sidecar_path
+
+        sidecar = sidecar_path(mesh_out) if mesh_out is not None else None
+        check_distinct({"-o/--output": output, "--mesh": mesh_out,
+                        f"the parameter file beside --mesh ({sidecar.name if sidecar else ''})": sidecar})
         if up not in ("y", "z"):
             raise UsageError(f"--up: expected y or z, got {up!r}")
         if not mesh.is_file():
@@ -103,7 +113,7 @@ def register(app: typer.Typer) -> None:
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         from ipm.convert import get_converter
-        from ipm.files import write_text
+        from ipm.files import all_or_nothing, write_text
         from ipm.io.meshes import load_mesh
 
         target = load_mesh(mesh, up=up, normalize=True)
@@ -120,14 +130,15 @@ def register(app: typer.Typer) -> None:
         with bar:
             result = fn(target, progress=progress, seed=seed, **kw)
         data = {**result.data, "source": {"mesh": str(mesh), "up": up}}
-        if mesh_out is not None:
-            from ipm.io.export import export_mesh
+        with all_or_nothing(output, mesh_out, sidecar):
+            if mesh_out is not None:
+                from ipm.io.export import export_mesh
 
-            shape = result.generator.to_mesh(result.values, resolution=resolution)
-            if shape.n_faces == 0:
-                raise UsageError(f"{to}: the converted shape is empty; nothing to write to {mesh_out}")
-            export_mesh(shape, mesh_out, result.generator.metadata(result.values))
-        write_text(output, json.dumps(data, indent=1) + "\n")
+                shape = result.generator.to_mesh(result.values, resolution=resolution)
+                if shape.n_faces == 0:
+                    raise UsageError(f"{to}: the converted shape is empty; nothing to write to {mesh_out}")
+                export_mesh(shape, mesh_out, result.generator.metadata(result.values))
+            write_text(output, json.dumps(data, indent=1) + "\n")
         out = {"output": str(output), "to": to, **{k: v for k, v in result.stats.items()
                                                       if isinstance(v, (int, float, str, bool))}}
         if mesh_out is not None:

@@ -1,4 +1,8 @@
-"""``ipm generate GEN ... -o OUT.{obj,ply,stl,glb}``."""
+"""``ipm generate GEN ... -o OUT.{obj,ply,stl,glb}``.
+
+The mesh, its ``.params.json`` sidecar and the ``--preview`` are written all or none (:func:`ipm.files.
+all_or_nothing`): an existing output is replaced only when every one of them is written, and two outputs
+that are the same file are refused before any work."""
 
 from __future__ import annotations
 
@@ -20,6 +24,7 @@ from ipm.cli.common import (
     emit,
     resolve_params,
 )
+from ipm.cli.render import MAX_RESOLUTION, MIN_RESOLUTION, check_resolution_option
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
 
@@ -35,8 +40,10 @@ def register(app: typer.Typer) -> None:
         set_: SetOpt = None,
         random: RandomOpt = False,
         seed: SeedOpt = 0,
-        resolution: Annotated[int, typer.Option(help="marching-cubes samples along the longest side "
-                                                     "(SDF generators)")] = 128,
+        resolution: Annotated[int, typer.Option(help=(
+            f"marching-cubes samples along the longest side, {MIN_RESOLUTION} to {MAX_RESOLUTION} (generators "
+            "meshed from a field: SDF trees, bsp and perturb files; mesh generators such as dishes and building "
+            "take --lod instead and accept any value in range)"))] = 128,
         lod: Annotated[str | None, typer.Option(help="level of detail of mesh generators (e.g. low, "
                                                      "medium, high)")] = None,
         preview: Annotated[Path | None, typer.Option(help="also write a shaded preview PNG")] = None,
@@ -44,12 +51,16 @@ def register(app: typer.Typer) -> None:
         json_out: JsonOpt = False,
     ) -> None:
         """Generate a mesh from a generator and parameters; write it with a .params.json sidecar."""
+        from ipm.files import check_distinct
         from ipm.generators import get_generator
         from ipm.io.export import export_mesh, sidecar_path
 
         check_output(output, MESH_SUFFIXES)
         if preview is not None:
             check_output(preview, (".png",))
+        check_distinct({"-o/--output": output, f"the parameter file beside -o ({sidecar_path(output).name})":
+                        sidecar_path(output), "--preview": preview})
+        check_resolution_option(resolution, upper=False)
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
         values = resolve_params(g, preset, params, set_, random, seed)
         if g.kind == "sdf":
@@ -57,6 +68,7 @@ def register(app: typer.Typer) -> None:
 
             tree = g.tree.with_values(values)
             check_resolution(resolution, *tree.bounds())
+        check_resolution_option(resolution)
         mesh = g.to_mesh(values, resolution=resolution, lod=lod)
         if mesh.n_faces == 0:
             raise UsageError(f"{gen}: these parameters give an empty shape (no surface inside the bounds)")

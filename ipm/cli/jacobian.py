@@ -1,4 +1,11 @@
-"""``ipm jacobian GEN ... -o J.npz``: derivatives of the output with respect to every continuous parameter."""
+"""``ipm jacobian GEN ... -o J.npz``: derivatives of the output with respect to every continuous parameter.
+
+Refused before any work: a Jacobian of more than :data:`ipm.jacobian.MAX_ENTRIES` entries (SDF: points x
+(parameters + 3); mesh: 3 x vertices x parameters, the vertices counted after ``--subdivide``'s levels: each
+level adds one vertex per edge), ``--points``/``--n-points`` for mesh generators (their Jacobian is of their
+own vertices), and points whose squares overflow the ``--dtype``. A result with NaN or infinite entries
+(float32 overflow) is refused instead of written.
+"""
 
 from __future__ import annotations
 
@@ -29,11 +36,12 @@ from ipm.cli.common import (
 if TYPE_CHECKING:
     import numpy as np
 
-# The largest Jacobian written (its array alone; the work to fill it grows with it)
-MAX_JACOBIAN_BYTES = 2**30
+# ipm.jacobian.MAX_ENTRIES, for the help text (that module imports torch, which `ipm --help` must not)
+MAX_ENTRIES = 2**28
 
-
-def _load_points(path: Path) -> np.ndarray:
+def _load_points(path: Path, dtype: str) -> np.ndarray:
+    """The points of a ``.npy`` file: (N, 3), finite, and small enough that squaring a coordinate (every
+    distance does) stays finite in ``dtype``."""
     import numpy as np
 
     from ipm.files import read_npy
@@ -43,7 +51,43 @@ def _load_points(path: Path) -> np.ndarray:
         raise UsageError(f"points file {path}: expected shape (N, 3) with N >= 1, got {pts.shape}")
     if not np.isfinite(pts).all():
         raise UsageError(f"points file {path}: contains NaN or infinite values")
+    limit = _largest_coordinate(dtype)
+    biggest = float(np.abs(pts).max())
+    if biggest > limit:
+        raise UsageError(f"points file {path}: expected coordinates of magnitude at most {limit:.3g} for --dtype "
+                         f"{dtype} (their squares overflow it), got {biggest:.3g}")
     return pts
+
+
+def _largest_coordinate(dtype: str) -> float:
+    """sqrt of the dtype's largest number, with room for a sum of three squares and a few factors."""
+    import numpy as np
+
+    return float(np.sqrt(np.finfo(dtype).max)) / 16
+
+
+def _subdivided_vertices(faces, n_verts: int, levels: int) -> int:
+    """The vertices after ``levels`` levels of a linear scheme (loop, midpoint): each level adds one vertex
+    per edge, E' = 2E + 3F, F' = 4F (counted, not built)."""
+    import numpy as np
+
+    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    v, e, f = n_verts, len(np.unique(edges, axis=0)), len(F)
+    for _ in range(levels):
+        v, e, f = v + e, 2 * e + 3 * f, 4 * f
+    return v
+
+
+def _refuse_non_finite(arrays: dict, dtype: str, where: str) -> None:
+    """Refuse a result with NaN or infinite entries (float32 overflow, points far away) instead of writing it."""
+    import torch
+
+    for name, a in arrays.items():
+        bad = int((~torch.isfinite(a)).sum())
+        if bad:
+            raise UsageError(f"{where}: expected a finite Jacobian, got {bad:,} NaN or infinite entries in {name} "
+                             f"with --dtype {dtype}; use --dtype float64, or points nearer the shape")
 
 
 def register(app: typer.Typer) -> None:
@@ -56,22 +100,28 @@ def register(app: typer.Typer) -> None:
         set_: SetOpt = None,
         random: RandomOpt = False,
         seed: SeedOpt = 0,
-        points: Annotated[Path | None, typer.Option(help="SDF generators: points (N, 3) as .npy")] = None,
-        n_points: Annotated[int, typer.Option("--n-points", help="SDF generators: sample N points "
-                                                                 "in the padded bounds")] = 10000,
+        points: Annotated[Path | None, typer.Option(help="SDF generators only: points (N, 3) as .npy")] = None,
+        n_points: Annotated[int | None, typer.Option("--n-points", help=(
+            "SDF generators only: sample N points in the padded bounds [default: 10000]"),
+            show_default=False)] = None,
         mode: Annotated[str, typer.Option(help="auto (the generator's own structured Jacobian when it "
                                                 "has one, else forward mode), fwd or rev")] = "auto",
         lod: Annotated[str | None, typer.Option(help="level of detail (mesh generators)")] = None,
         subdivide: Annotated[str | None, typer.Option(help="mesh generators: the Jacobian of the mesh subdivided "
                                                            "by this scheme (loop or midpoint): S J")] = None,
-        levels: Annotated[int, typer.Option(help="with --subdivide: how many levels, 1 to 6")] = 1,
+        levels: Annotated[int, typer.Option(help=(
+            "with --subdivide: how many levels, 1 to 6 (each about quadruples the rows; the Jacobian must "
+            f"stay within {MAX_ENTRIES:,} entries)"))] = 1,
         check: Annotated[bool, typer.Option(help="compare with float64 central differences")] = False,
         dtype: Annotated[str, typer.Option(help="float32 or float64")] = "float64",
         device: DeviceOpt = "auto",
         library: LibraryOpt = None,
         json_out: JsonOpt = False,
     ) -> None:
-        """Jacobian of a generator's output: SDF (N, n+3) w.r.t. parameters and position; mesh (3V, n)."""
+        """Jacobian of a generator's output: SDF (N, n+3) w.r.t. parameters and position; mesh (3V, n).
+
+        At most 268,435,456 entries (rows x columns; 2 GiB at float64), checked before any work; --points and
+        --n-points apply to SDF generators only."""
         import numpy as np
         import torch
 
@@ -79,6 +129,7 @@ def register(app: typer.Typer) -> None:
         from ipm.generators import get_generator
         from ipm.jacobian import (
             MODES,
+            check_entries,
             check_mesh_jacobian,
             check_sdf_jacobian,
             mesh_jacobian,
@@ -90,7 +141,9 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"--mode: expected one of {', '.join(MODES)}, got {mode!r}")
         if dtype not in ("float32", "float64"):
             raise UsageError(f"--dtype: expected float32 or float64, got {dtype!r}")
-        if points is None and n_points < 1:
+        if points is not None and n_points is not None:
+            raise UsageError("give one of --points and --n-points, got both")
+        if n_points is not None and n_points < 1:
             raise UsageError(f"--n-points: expected a positive count, got {n_points}")
         scheme = resolve_subdivision("--subdivide", subdivide, levels) if subdivide is not None else None
         if scheme is not None and not hasattr(scheme, "operator"):
@@ -101,31 +154,37 @@ def register(app: typer.Typer) -> None:
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
         if subdivide is not None and g.kind != "mesh":
             raise UsageError(f"--subdivide: applies to mesh generators; {gen} is an SDF generator")
+        for opt, v in (("--points", points), ("--n-points", n_points)):
+            if v is not None and g.kind == "mesh":
+                raise UsageError(f"{opt}: applies to SDF generators; {gen} is a mesh generator, whose Jacobian "
+                                 "is of its own vertices")
         values = resolve_params(g, preset, params, set_, random, seed)
         theta, discrete = g.split(values, dt, dev)
         names = [p.name for p in g.spec.continuous]
         out: dict[str, np.ndarray] = {}
         if g.kind == "sdf":
             tree = g.tree_for(discrete)
-            n_rows = len(_load_points(points)) if points is not None else n_points
-            need = n_rows * (len(names) + 3) * dt.itemsize
-            if need > MAX_JACOBIAN_BYTES:
-                raise UsageError(f"the Jacobian of {n_rows} points x {len(names) + 3} columns would take "
-                                 f"{need / 2**30:.1f} GiB; the limit is {MAX_JACOBIAN_BYTES / 2**30:g} GiB "
-                                 f"(at most {MAX_JACOBIAN_BYTES // ((len(names) + 3) * dt.itemsize)} points here)")
-            if points is not None:
-                pts = torch.as_tensor(_load_points(points), dtype=dt, device=dev)
+            loaded = _load_points(points, dtype) if points is not None else None
+            n_rows = len(loaded) if loaded is not None else n_points or 10000
+            cols = len(names) + 3
+            check_entries(n_rows, cols, f"the Jacobian of {n_rows:,} points" if points is None else
+                          f"points file {points}", f"at most {MAX_ENTRIES // cols:,} points here")
+            if loaded is not None:
+                pts = torch.as_tensor(loaded, dtype=dt, device=dev)
             else:
                 rng = seed_everything(seed)
                 lo, hi = tree.with_theta(theta).bounds()
                 pad = 0.1 * (hi - lo).max()
-                pts = torch.as_tensor(rng.uniform(lo - pad, hi + pad, size=(n_points, 3)), dtype=dt, device=dev)
+                pts = torch.as_tensor(rng.uniform(lo - pad, hi + pad, size=(n_rows, 3)), dtype=dt, device=dev)
 
             def f(th, p):
                 return tree.sdf(th, p)
 
             J = sdf_jacobian(f, theta, pts, mode)
-            out.update(points=pts.cpu().numpy(), sdf=f(theta, pts).detach().cpu().numpy())
+            values_at = f(theta, pts).detach()
+            _refuse_non_finite({"J": J, "sdf": values_at}, dtype,
+                               f"points file {points}" if points is not None else f"{gen} at {n_rows:,} points")
+            out.update(points=pts.cpu().numpy(), sdf=values_at.cpu().numpy())
             names = names + ["p.x", "p.y", "p.z"]
             result = {"kind": "sdf", "shape": list(J.shape)}
             if check:
@@ -145,6 +204,13 @@ def register(app: typer.Typer) -> None:
 
             mesh = g.mesh(theta, discrete, lod)
             if subdivide is not None:
+                rows = 3 * _subdivided_vertices(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
+                check_entries(rows, len(names), f"--subdivide {subdivide} --levels {levels}",
+                              f"3 x {rows // 3:,} vertices after {levels} level(s) x {len(names)} parameters; use "
+                              "fewer --levels")
+            else:
+                check_entries(3 * mesh.n_verts, len(names), f"{gen}", "use a lower --lod")
+            if subdivide is not None:
                 # the subdivided mesh is S V(theta) with S fixed by the faces: its Jacobian is S J
                 op, sub_faces = scheme.operator(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
                 coarse_f, coarse_jac = f, jac
@@ -160,6 +226,7 @@ def register(app: typer.Typer) -> None:
             else:
                 verts, faces = mesh.verts, mesh.faces.cpu().numpy()
             J = jac(theta)
+            _refuse_non_finite({"J": J, "vertices": verts.detach()}, dtype, f"{gen} at these parameters")
             out.update(verts=verts.detach().cpu().numpy(), faces=faces)
             result = {"kind": "mesh", "shape": list(J.shape),
                       "method": "structured" if mode == "auto" and own is not None else mode}

@@ -1,4 +1,8 @@
-"""``ipm mask PHOTO --box X0,Y0,X1,Y1 -o MASK.png``: a foreground mask from a photo and a box (GrabCut)."""
+"""``ipm mask PHOTO --box X0,Y0,X1,Y1 -o MASK.png``: a foreground mask from a photo and a box (GrabCut).
+
+The box is four whole, finite pixel coordinates. The mask and the ``--overlay`` are written all or none
+(:func:`ipm.files.all_or_nothing`), and an overlay path that is the mask's own file is refused before any
+work."""
 
 from __future__ import annotations
 
@@ -14,26 +18,29 @@ def register(app: typer.Typer) -> None:
     @app.command()
     def mask(
         photo: Annotated[Path, typer.Argument(help="the photo (JPEG, PNG, ...)")],
-        box: Annotated[str, typer.Option(help="X0,Y0,X1,Y1: a box around the object, in pixels (x right, "
-                                              "y down)")],
+        box: Annotated[str, typer.Option(help="X0,Y0,X1,Y1: a box around the object, in whole pixels "
+                                              "(x right, y down; X1, Y1 exclusive)")],
         output: Annotated[Path, typer.Option("-o", "--output", help="mask PNG (255 on the object)")],
         iterations: Annotated[int, typer.Option(min=1, max=100, help="GrabCut iterations")] = 5,
         context: Annotated[float, typer.Option(min=0.0, max=10.0, help=(
             "band around the box that the background colour model learns from, in box sizes"))] = 0.5,
-        overlay: Annotated[Path | None, typer.Option(help="also write the photo with the mask over it (PNG)")] = None,
+        overlay: Annotated[Path | None, typer.Option(help="also write the photo with the mask over it (PNG; "
+                                                          "a file other than -o)")] = None,
         seed: SeedOpt = 0,
         json_out: JsonOpt = False,
     ) -> None:
         """Make a foreground mask from a photo and a box around the object (GrabCut, no learned weights)."""
-        from ipm.files import all_or_nothing
+        from ipm.files import all_or_nothing, check_distinct
         from ipm.io.masks import read_photo, write_mask
         from ipm.segment import box_mask, parse_box
 
         check_output(output, (".png",))
         if overlay is not None:
             check_output(overlay, (".png",))
+        check_distinct({"-o/--output": output, "--overlay": overlay})
+        corners = parse_box(box)
         image = read_photo(photo)
-        m = box_mask(image, parse_box(box), iterations=iterations, context=context, seed=seed)
+        m = box_mask(image, corners, iterations=iterations, context=context, seed=seed)
         if not m.any():
             raise UsageError(f"--box {box}: no foreground found in the box; draw the box around the object")
         with all_or_nothing(output, *([overlay] if overlay else [])):

@@ -2,10 +2,19 @@
 
 With ``--masks DIR`` it renders in the cameras of an existing mask set instead and also writes
 target-vs-render overlays with their IoU.
+
+Sizes are checked before any work, per view (``MAX_SIDE`` pixels a side) and in total (``MAX_PIXELS``
+over all views: the work and the files grow with it). Views are written one by one into a staged folder
+(:func:`ipm.files.staged_directory`), so memory holds one view at a time, and the folder appears, or its
+render files are replaced, only when every view is written. An output folder that is not empty is refused
+unless ``--overwrite`` is given; then every render file in it (``view_*``, ``preview_*``, ``overlay_*``,
+``depth_*``, ``normal_*``, ``part_*``, ``cameras.json``, ``parts.json``) is replaced as a whole, so that
+no file of an earlier render survives to be read with the new one; other files are kept.
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Annotated
 
@@ -25,6 +34,17 @@ from ipm.cli.common import (
 )
 
 NEAR = 1e-3
+# --resolution (marching cubes) of generate and render; each grid is also checked against memory
+MIN_RESOLUTION, MAX_RESOLUTION = 8, 2048
+
+
+def check_resolution_option(resolution: int, *, upper: bool = True) -> int:
+    """``--resolution`` in range, for every source (mesh generators and mesh files ignore it, but a value
+    no generator could use is refused alike). Commands check the lower bound before any work and the upper
+    one after an SDF generator's own memory check, whose message names the largest resolution that fits."""
+    if resolution < MIN_RESOLUTION or (upper and resolution > MAX_RESOLUTION):
+        raise UsageError(f"--resolution: expected {MIN_RESOLUTION}..{MAX_RESOLUTION} samples, got {resolution}")
+    return resolution
 
 
 def _source_mesh(source: str, up: str, normalize: bool, resolution: int, library, param_opts: dict):
@@ -38,6 +58,7 @@ def _source_mesh(source: str, up: str, normalize: bool, resolution: int, library
         used = [k for k, v in param_opts.items() if v]
         if used:
             raise UsageError(f"{', '.join(used)} apply to generators, not to a mesh file ({path})")
+        check_resolution_option(resolution)
         return load_mesh(path, up=up, normalize=normalize), {"mesh": str(path)}
     if up != "y":
         raise UsageError("--up applies to mesh files; generators are Y-up")
@@ -50,6 +71,7 @@ def _source_mesh(source: str, up: str, normalize: bool, resolution: int, library
         from ipm.sdf.meshing import check_resolution
 
         check_resolution(resolution, *g.tree.with_values(values).bounds())
+    check_resolution_option(resolution)
     mesh = g.to_mesh(values, resolution=resolution)
     if mesh.n_faces == 0 or surface_area(mesh) <= 0:
         raise UsageError(f"{source}: these parameters give an empty shape (no surface to render)")
@@ -84,10 +106,17 @@ def _cameras(views: int | None, cameras: Path | None, masks: Path | None, size: 
     s = 256 if size is None else size
     if not 8 <= s <= MAX_SIDE:
         raise UsageError(f"--size: expected an image size in 8..{MAX_SIDE} pixels, got {s}")
+    if k * s * s > MAX_PIXELS:
+        raise UsageError(f"--views {k} --size {s}: {k} views of {s}x{s} are {k * s * s:,} pixels; expected at "
+                         f"most {MAX_PIXELS:,} pixels in all (the limit; at --size {s} at most "
+                         f"{max(1, MAX_PIXELS // (s * s))} views)")
     return input_views(k, s), None
 
 
+# One view at most MAX_SIDE a side (about 13 GB of work memory at 8192x8192, one view at a time) and at most
+# MAX_PIXELS over all views (about 1 microsecond a pixel here: 4 to 5 minutes, and about 1 GB of depth maps).
 MAX_SIDE, MAX_VIEWS = 8192, 256
+MAX_PIXELS = 2**28
 
 
 def _check_sizes(cams: list, where: str) -> list:
@@ -98,7 +127,36 @@ def _check_sizes(cams: list, where: str) -> list:
         if not (1 <= c.width <= MAX_SIDE and 1 <= c.height <= MAX_SIDE):
             raise UsageError(f"{where}: camera {i} asks for {c.width}x{c.height} pixels; each side may be at "
                              f"most {MAX_SIDE}")
+    total = sum(int(c.width) * int(c.height) for c in cams)
+    if total > MAX_PIXELS:
+        raise UsageError(f"{where}: {len(cams)} cameras ask for {total:,} pixels; expected at most "
+                         f"{MAX_PIXELS:,} pixels in all (the limit)")
     return cams
+
+
+# The files a render writes: with --overwrite, every one of them in the output folder is replaced.
+RENDER_FILE = re.compile(r"^(?:(?:view|preview|overlay|depth|normal|part)_\d{3,}\.(?:png|npy)|cameras\.json|"
+                         r"parts\.json)$")
+
+
+def is_render_file(name: str) -> bool:
+    return RENDER_FILE.match(name) is not None
+
+
+def _check_output_folder(output: Path, overwrite: bool, masks: Path | None) -> None:
+    """Before any work: a file in the way, a folder holding anything without --overwrite, the --masks
+    folder itself, a place this process may not write."""
+    from ipm.files import check_writable, same_file
+    from ipm.io.masks import CAMERAS_FILE
+
+    if output.exists() and not output.is_dir():
+        raise UsageError(f"output {output}: expected a folder, got a file")
+    if masks is not None and output.exists() and same_file(output, masks):
+        raise UsageError(f"-o/--output {output}: expected a folder other than --masks, got the same folder")
+    if output.is_dir() and not overwrite and any(output.iterdir()):
+        raise UsageError(f"output {output}: expected a new or empty folder, got one that holds files; give "
+                         "--overwrite to replace its render files")
+    check_writable(output / CAMERAS_FILE)
 
 
 def _cue_maps(fr, mesh) -> dict:
@@ -113,24 +171,14 @@ def _cue_maps(fr, mesh) -> dict:
     return {"depth": depth, "normal": fr.normal, "mask": fr.mask, "parts": parts}
 
 
-def _save_cues(folder: Path, maps: list[dict], part_names) -> None:
-    from ipm.io.cues import (
-        depth_name,
-        normal_name,
-        part_name,
-        write_depth,
-        write_normals,
-        write_part_names,
-        write_parts,
-    )
+def _save_cues(folder: Path, i: int, m: dict) -> None:
+    """View ``i``'s depth, normals and part labels."""
+    from ipm.io.cues import depth_name, normal_name, part_name, write_depth, write_normals, write_parts
 
-    for i, m in enumerate(maps):
-        write_depth(folder / depth_name(i), m["depth"])
-        write_normals(folder / normal_name(i), m["normal"], m["mask"])
-        if m["parts"] is not None:
-            write_parts(folder / part_name(i), m["parts"])
-    if maps and maps[0]["parts"] is not None:
-        write_part_names(folder, part_names)
+    write_depth(folder / depth_name(i), m["depth"])
+    write_normals(folder / normal_name(i), m["normal"], m["mask"])
+    if m["parts"] is not None:
+        write_parts(folder / part_name(i), m["parts"])
 
 
 def _check_outside(mesh, cameras) -> None:
@@ -151,7 +199,8 @@ def register(app: typer.Typer) -> None:
     def render(
         source: Annotated[str, typer.Argument(metavar="MESH|GEN", help="mesh file (.ply, .obj, .stl, .glb, "
                                               ".off) or a generator name, tree preset or tree file (.json)")],
-        output: Annotated[Path, typer.Option("-o", "--output", help="output folder (created)")],
+        output: Annotated[Path, typer.Option("-o", "--output", help=(
+            "output folder: new or empty (created), or with --overwrite one holding an earlier render"))],
         preset: PresetOpt = None,
         params: ParamsOpt = None,
         set_: SetOpt = None,
@@ -163,90 +212,95 @@ def register(app: typer.Typer) -> None:
                                                      "distance 1 (the evaluation protocol's unit bounding "
                                                      "sphere)")] = True,
         views: Annotated[int | None, typer.Option(
-            help="K protocol input views: FOV 40, distance 3.2, elevation 25, azimuths 30 + k 360/K "
-                 "[default: 4]")] = None,
+            help=f"K protocol input views, 1 to {MAX_VIEWS}: FOV 40, distance 3.2, elevation 25, azimuths "
+                 f"30 + k 360/K; views x size^2 at most {MAX_PIXELS:,} pixels [default: 4]")] = None,
         cameras: Annotated[Path | None, typer.Option(help="cameras.json (or a folder holding one) to render "
                                                           "instead of the protocol views")] = None,
         masks: Annotated[Path | None, typer.Option(
             help="a mask set folder: render in its cameras and also write overlays with the IoU against "
                  "its masks")] = None,
         size: Annotated[int | None, typer.Option(
-            help="image size in pixels for --views [default: 256]")] = None,
-        resolution: Annotated[int, typer.Option(help="marching-cubes samples along the longest side "
-                                                     "(SDF generators)")] = 128,
+            help=f"image size in pixels for --views, 8 to {MAX_SIDE}; cameras files are held to the same "
+                 f"limits (each side, and {MAX_PIXELS:,} pixels over all views) [default: 256]")] = None,
+        resolution: Annotated[int, typer.Option(help=f"marching-cubes samples along the longest side, "
+                                                     f"{MIN_RESOLUTION} to {MAX_RESOLUTION} (SDF "
+                                                     "generators)")] = 128,
         cues: Annotated[bool, typer.Option("--cues/--no-cues", help=(
             "also write depth_###.npy (view-axis depth, scene units), normal_###.png and, for meshes with "
             "parts, part_###.png with parts.json"))] = True,
         preview_views: Annotated[bool, typer.Option("--previews/--no-previews",
                                                     help="also write shaded previews")] = True,
+        overwrite: Annotated[bool, typer.Option("--overwrite", help=(
+            "render into a folder that is not empty: all of its render files (view_*, preview_*, overlay_*, "
+            "depth_*, normal_*, part_*, cameras.json, parts.json) are replaced as a whole, once the new render "
+            "is complete; other files stay"))] = False,
         library: LibraryOpt = None,
         json_out: JsonOpt = False,
     ) -> None:
         """Render exact masks (view_000.png ...), cameras.json and shaded previews (preview_000.png ...)."""
+        import logging
+
         import numpy as np
 
-        from ipm.files import staged_directory
-        from ipm.io.cues import depth_name, part_name
-        from ipm.io.masks import CAMERAS_FILE, save_mask_set, view_name
+        from ipm.files import staged_directory, write_text
+        from ipm.io.cues import depth_name, part_name, write_part_names
+        from ipm.io.masks import CAMERAS_FILE, view_name, write_mask
+        from ipm.metrics import touches_border
+        from ipm.render.camera import cameras_to_json
         from ipm.render.preview import save_png, shade_fragments
         from ipm.render.raster import rasterize
 
         if up.lower() not in ("y", "z"):
             raise UsageError(f"--up: expected y or z, got {up!r}")
-        if output.exists() and not output.is_dir():
-            raise UsageError(f"output {output}: expected a folder, got a file")
-        from ipm.files import check_writable
-
-        check_writable(output / CAMERAS_FILE)
-        if not 8 <= resolution <= 2048:
-            raise UsageError(f"--resolution: expected 8..2048 samples, got {resolution}")
+        _check_output_folder(output, overwrite, masks)
+        check_resolution_option(resolution, upper=False)
         cams, target = _cameras(views, cameras, masks, size)
         param_opts = {"--preset": preset, "--params": params, "--set": set_, "--random": random, "seed": seed}
         mesh, about = _source_mesh(source, up.lower(), normalize, resolution, library, param_opts)
         _check_outside(mesh, cams)
 
         result = {"dir": str(output), "views": len(cams), "faces": mesh.n_faces, **about}
-        rendered, pictures, ious, maps = [], [], [], []
-        for cam in cams:
-            fr = rasterize(mesh.verts, mesh.faces, cam, near=NEAR)
-            rendered.append(fr.mask.cpu().numpy())
-            if cues:
-                maps.append(_cue_maps(fr, mesh))
-            if preview_views:
-                pictures.append(shade_fragments(fr, cam, mesh))
-        empty = [i for i, m in enumerate(rendered) if not m.any()]
-        import logging
+        ious, empty, clipped = [], [], []
+        parts = cues and mesh.groups is not None and bool(mesh.group_names)
+        # one view at a time: rendered, written into the staged folder, dropped
+        with staged_directory(output, replace=is_render_file if overwrite else None) as tmp:
+            for i, cam in enumerate(cams):
+                fr = rasterize(mesh.verts, mesh.faces, cam, near=NEAR)
+                m = fr.mask.cpu().numpy()
+                if not m.any():
+                    empty.append(i)
+                elif touches_border(m):
+                    clipped.append(i)
+                write_mask(tmp / view_name(i), m)
+                if cues:
+                    _save_cues(tmp, i, _cue_maps(fr, mesh))
+                if preview_views:
+                    save_png(tmp / f"preview_{i:03d}.png", shade_fragments(fr, cam, mesh))
+                if target is not None:
+                    from ipm.viz import mask_iou, overlay
 
-        if empty:
-            logging.getLogger("ipm").warning("the object is outside views %s: their masks are empty",
-                                             ", ".join(map(str, empty)))
-        from ipm.metrics import touches_border
-
-        clipped = [i for i, m in enumerate(rendered) if m.any() and touches_border(m)]
-        if clipped:
-            logging.getLogger("ipm").warning("the object touches the image border in views %s: a fit cannot "
-                                             "see where it ends (use --normalize or move the cameras out)",
-                                             ", ".join(map(str, clipped)))
-        with staged_directory(output) as tmp:
-            save_mask_set(tmp, rendered, cams)
-            _save_cues(tmp, maps, mesh.group_names)
-            for i, pic in enumerate(pictures):
-                save_png(tmp / f"preview_{i:03d}.png", pic)
-            if target is not None:
-                from ipm.viz import mask_iou, overlay
-
-                for i, (cam, m) in enumerate(zip(cams, rendered)):
                     t = target.masks[i, : cam.height, : cam.width].numpy()
                     ious.append(mask_iou(t, m))
                     overlay(t, m, f"view {i}").save(tmp / f"overlay_{i:03d}.png", format="PNG")
+                del fr, m
+            write_text(tmp / CAMERAS_FILE, cameras_to_json(cams))
+            if parts:
+                write_part_names(tmp, mesh.group_names)
+            if empty:
+                logging.getLogger("ipm").warning("the object is outside views %s: their masks are empty",
+                                                 ", ".join(map(str, empty)))
+            if clipped:
+                logging.getLogger("ipm").warning("the object touches the image border in views %s: a fit "
+                                                 "cannot see where it ends (use --normalize or move the "
+                                                 "cameras out)", ", ".join(map(str, clipped)))
         result["masks"] = [str(output / view_name(i)) for i in range(len(cams))]
-        if maps:
+        if cues:
             result["depth"] = [str(output / depth_name(i)) for i in range(len(cams))]
-            if maps[0]["parts"] is not None:
+            if parts:
                 result["parts"] = [str(output / part_name(i)) for i in range(len(cams))]
         result["cameras"] = str(output / CAMERAS_FILE)
-        if pictures:
-            result["previews"] = [str(output / f"preview_{i:03d}.png") for i in range(len(pictures))]
+        if preview_views:
+            result["previews"] = [str(output / f"preview_{i:03d}.png") for i in range(len(cams))]
         if ious:
             result["iou"] = [round(v, 6) for v in ious]
             result["mean_iou"] = round(float(np.mean(ious)), 6)
