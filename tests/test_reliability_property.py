@@ -8,8 +8,8 @@ Hypothesis runs a few dozen examples per kind, derandomized (the same examples o
 stable) with no deadline. Each example copies a set of valid inputs (built once per module) into a fresh
 folder and damages one file. Commands run in-process with stdout and stderr captured.
 
-Kinds whose reader lives in a file others are changing at the same time may be marked
-``xfail(strict=False)`` with the file named (see ``XFAIL``): re-enable them once those changes are merged.
+A kind whose reader is known to break may be marked ``xfail(strict=False)`` with the file named (``XFAIL``;
+empty today).
 """
 
 from __future__ import annotations
@@ -406,19 +406,7 @@ KINDS = {
 # kind -> the file outside issue #32's "sizes and outputs" part whose reader still fails some damaged inputs
 # (re-enable once the fixes to that file are merged). On a trial merge with main at 2ed439b (i32-a and i32-b
 # merged) cameras.json, intrinsics YAML and both run-folder kinds pass; the three mesh kinds still fail there.
-XFAIL: dict[str, str] = {
-    "mesh .obj": "ipm/io/meshes.py: load_mesh lets trimesh's ValueError out ('v 1 2': cannot reshape array)",
-    "mesh .ply": "ipm/io/meshes.py: load_mesh lets trimesh's IndexError out (a face index beyond the vertices)",
-    "mesh .stl": "ipm/io/meshes.py: an STL with NaN coordinates also prints trimesh's RuntimeWarning (two lines "
-                 "on stderr)",
-    "mask set: cameras.json": "ipm/render/camera.py: load_cameras parses JSON without the nesting limit "
-                              "(RecursionError)",
-    "intrinsics YAML": "ipm/render/camera.py: YAML intrinsics nested 1000 deep raise RecursionError",
-    "run folder: settings.json": "ipm/cli/fit.py (_is_structure_run, _run_generator: json.loads without the nesting "
-                                 "limit, RecursionError) and ipm/fitting.py (a refused --resume rewrites "
-                                 "settings.json)",
-    "run folder: trajectory.jsonl": "ipm/io/runs.py: read_trajectory lets UnicodeDecodeError out on binary data",
-}
+XFAIL: dict[str, str] = {}  # every kind passes since the readers were fixed (issue #32)
 
 
 def _files(folder: Path) -> dict[str, bytes | None]:

@@ -9,6 +9,7 @@ applied.
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 
@@ -104,15 +105,20 @@ def load_mesh(path: str | Path, *, up: str = "y", normalize: bool = True,
         raise InputError(f"up axis: expected one of {', '.join(UP_AXES)}, got {up!r}")
     kwargs = {"skip_materials": True} if path.suffix.lower() in (".obj", ".ply") else {}
     try:
-        tm = trimesh.load_mesh(str(path), process=False, **kwargs)
+        with warnings.catch_warnings():  # a broken file's numpy warnings (NaN, overflow) would be a second line
+            warnings.simplefilter("ignore")
+            tm = trimesh.load_mesh(str(path), process=False, **kwargs)
+            faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
+            verts = np.asarray(getattr(tm, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     except MemoryError:
         raise
-    except Exception as e:  # trimesh raises many kinds of errors for broken files
+    except Exception as e:  # trimesh raises many kinds of errors for broken files (a vertex "v 1 2" too)
         raise InputError(unreadable(path, e)) from None
-    faces = np.asarray(getattr(tm, "faces", np.zeros((0, 3))), dtype=np.int64).reshape(-1, 3)
-    verts = np.asarray(getattr(tm, "vertices", np.zeros((0, 3))), dtype=np.float64).reshape(-1, 3)
     if len(faces) == 0:
         raise InputError(f"mesh file {path}: expected triangles, got none")
+    if faces.min() < 0 or faces.max() >= len(verts):
+        raise InputError(f"mesh file {path}: expected vertex indices in [0, {len(verts)}) in its faces, got "
+                         f"[{int(faces.min())}, {int(faces.max())}]")
     if not np.isfinite(verts).all():
         raise InputError(f"mesh file {path}: expected finite vertex coordinates, got NaN or inf")
     mesh = TriMesh(to_y_up(torch.as_tensor(verts, dtype=dtype), up), torch.as_tensor(faces))
