@@ -174,3 +174,136 @@ def check_mesh_jacobian(f: MeshFn, theta: torch.Tensor, J: torch.Tensor | None =
     if J is None:
         J = mesh_jacobian(f, theta, mode)
     return _compare(J, mesh_fd_jacobian(f, theta, step), step)
+
+
+# -- the Jacobian of a generator's output (ipm jacobian) ----------------------------------------------------
+
+@dataclass
+class OutputJacobian:
+    """The Jacobian of a generator's output and what it is of: ``J`` (rows, columns) in the generator's dtype;
+    ``names`` of the columns (the continuous parameters, then ``p.x p.y p.z`` for a field); ``arrays`` (what
+    ``ipm jacobian`` writes beside it: ``points`` and ``sdf`` for a field, ``verts`` and ``faces`` for a mesh);
+    ``info`` (kind, shape, method, subdivision); ``check``: the comparison with float64 central differences
+    where asked."""
+
+    J: torch.Tensor
+    names: list[str]
+    arrays: dict
+    info: dict
+    check: JacobianCheck | None = None
+
+
+def _refuse_non_finite(arrays: dict, dtype: torch.dtype, where: str) -> None:
+    """A result with NaN or infinite entries (float32 overflow, points far away) is bad input, not an output."""
+    for name, a in arrays.items():
+        bad = int((~torch.isfinite(a)).sum())
+        if bad:
+            raise InputError(f"{where}: expected a finite Jacobian, got {bad:,} NaN or infinite entries in {name} "
+                             f"with dtype {str(dtype).removeprefix('torch.')}; use float64, or points nearer the "
+                             "shape")
+
+
+def subdivided_vertices(faces, n_verts: int, levels: int) -> int:
+    """The vertices after ``levels`` levels of a linear scheme (loop, midpoint), counted, not built: each level
+    adds one vertex per edge, E' = 2E + 3F, F' = 4F."""
+    import numpy as np
+
+    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    v, e, f = n_verts, len(np.unique(edges, axis=0)), len(F)
+    for _ in range(levels):
+        v, e, f = v + e, 2 * e + 3 * f, 4 * f
+    return v
+
+
+def _field_output(g, theta, discrete, *, mode, points, n_points, rng, check, **_) -> OutputJacobian:
+    """A field generator's distances at points ``(N, 3)`` (given, or ``n_points`` drawn by ``rng`` in the padded
+    bounds): ``(N, n + 3)`` with respect to the parameters and the point."""
+    tree = g.tree_for(discrete)
+    names = [p.name for p in g.spec.continuous]
+    cols = len(names) + 3
+    n_rows = len(points) if points is not None else n_points
+    check_entries(n_rows, cols, f"the Jacobian of {n_rows:,} points", f"at most {MAX_ENTRIES // cols:,} points here")
+    if points is None:
+        lo, hi = tree.with_theta(theta).bounds()
+        pad = 0.1 * (hi - lo).max()
+        points = torch.as_tensor(rng.uniform(lo - pad, hi + pad, size=(n_rows, 3)), dtype=theta.dtype,
+                                 device=theta.device)
+
+    def f(th, p):
+        return tree.sdf(th, p)
+
+    J = sdf_jacobian(f, theta, points, mode)
+    at = f(theta, points).detach()
+    _refuse_non_finite({"J": J, "sdf": at}, theta.dtype, f"{g.name} at {n_rows:,} points")
+    chk = check_sdf_jacobian(f, theta, points[:2000], mode=mode) if check else None
+    return OutputJacobian(J, names + ["p.x", "p.y", "p.z"], {"points": points, "sdf": at},
+                          {"kind": "sdf", "shape": list(J.shape)}, chk)
+
+
+def _mesh_output(g, theta, discrete, *, mode, lod, scheme, levels, check, **_) -> OutputJacobian:
+    """A mesh generator's vertices: ``(3V, n)``, by the generator's own structured forward mode where it has one
+    (``mode="auto"``), else by torch.func; with a linear subdivision ``scheme`` (its ``operator``), the
+    subdivided mesh's ``S J`` (S fixed by the faces)."""
+    names = [p.name for p in g.spec.continuous]
+
+    def f(th):
+        return g.mesh(th, discrete, lod).verts
+
+    own = getattr(g, "jacobian", None)
+    structured = mode == "auto" and own is not None
+    if structured:  # the generator's closed-form rings and 3x3 blocks: the same values
+        def jac(th):
+            return own(th, discrete, lod)
+    else:
+        def jac(th):
+            return mesh_jacobian(f, th, mode)
+
+    mesh = g.mesh(theta, discrete, lod)
+    faces = mesh.faces.cpu().numpy()
+    if scheme is not None:
+        rows = 3 * subdivided_vertices(faces, mesh.n_verts, levels)
+        check_entries(rows, len(names), f"--subdivide {scheme.name} --levels {levels}",
+                      f"3 x {rows // 3:,} vertices after {levels} level(s) x {len(names)} parameters; use fewer "
+                      "--levels")
+        op, faces = scheme.operator(faces, mesh.n_verts, levels)
+        coarse_f, coarse_jac = f, jac
+
+        def f(th):
+            return op(coarse_f(th))
+
+        def jac(th):
+            J0 = coarse_jac(th)
+            return op(J0.reshape(J0.shape[0] // 3, -1)).reshape(-1, J0.shape[1])
+    else:
+        check_entries(3 * mesh.n_verts, len(names), g.name, "use a lower --lod")
+    verts = f(theta).detach() if scheme is not None else mesh.verts.detach()
+    J = jac(theta)
+    _refuse_non_finite({"J": J, "vertices": verts}, theta.dtype, f"{g.name} at these parameters")
+    info = {"kind": "mesh", "shape": list(J.shape), "method": "structured" if structured else mode}
+    if scheme is not None:
+        info["subdivided"] = f"{scheme.name} x{levels}"
+    chk = check_mesh_jacobian(f, theta, jac(theta.double())) if check else None
+    return OutputJacobian(J, names, {"verts": verts, "faces": faces}, info, chk)
+
+
+# the Jacobian of each kind of generator's output (``Generator.kind``): the one place that tells them apart;
+# ``takes_points``: its rows are points given or drawn (a field), not the generator's own vertices (a mesh)
+_field_output.takes_points, _mesh_output.takes_points = True, False
+OUTPUTS = {"sdf": _field_output, "mesh": _mesh_output}
+
+
+def output_jacobian(g, values, *, dtype: torch.dtype = torch.float64, device=None, mode: Mode = "auto", lod=None,
+                    points: torch.Tensor | None = None, n_points: int = 10_000, seed: int = 0, scheme=None,
+                    levels: int = 1, check: bool = False) -> OutputJacobian:
+    """The Jacobian of generator ``g``'s output at ``values`` (a validated parameter dict): a field's distances at
+    ``points (N, 3)`` or at ``n_points`` points drawn with ``seed``, ``(N, n + 3)``; a mesh's vertices ``(3V, n)``
+    at ``lod``, subdivided ``levels`` times by the linear ``scheme`` where given (:mod:`ipm.subdiv`). Refused
+    (:class:`InputError`) before any work beyond :data:`MAX_ENTRIES` entries, and after it where an entry is
+    not finite."""
+    import numpy as np
+
+    _check_mode(mode)
+    theta, discrete = g.split(values, dtype, device)
+    return OUTPUTS[g.kind](g, theta, discrete, mode=mode, lod=lod, points=points, n_points=n_points,
+                           rng=np.random.default_rng(seed), scheme=scheme, levels=levels, check=check)

@@ -493,7 +493,7 @@ def test_a_non_finite_jacobian_is_refused(tmp_path, capsys, monkeypatch):
                              tmp_path / "o" / "j.npz"], capsys)
     assert code == 2 and stdout == ""
     assert err.strip() == ("ipm: error: chair at 8 points: expected a finite Jacobian, got 2 NaN or infinite entries "
-                           "in J with --dtype float32; use --dtype float64, or points nearer the shape")
+                           "in J with dtype float32; use float64, or points nearer the shape")
     assert not (tmp_path / "o").exists()
     assert torch.isfinite(real(lambda th, p: p.norm(dim=-1), torch.zeros(0), torch.ones(2, 3))).all()
 

@@ -129,7 +129,7 @@ def render_views(mesh: TriMesh, cameras: Sequence[Camera], *, depth: bool = Fals
     as ``ipm render`` writes them), from one exact rasterization per camera (the one :func:`render_masks`
     makes, so the cues cover exactly the masks' pixels). A named part the mesh does not have (a mug
     without a handle) is nowhere. ``InputError`` when ``parts`` are asked of a mesh without groups."""
-    from ipm.render.raster import rasterize_mesh
+    from ipm.render.raster import rasterize_mesh, view_maps
 
     parts = tuple(parts)
     lut = None
@@ -142,13 +142,12 @@ def render_views(mesh: TriMesh, cameras: Sequence[Camera], *, depth: bool = Fals
                            dtype=torch.int64)
     masks, depths, labels = [], [], []
     for cam in cameras:
-        fr = rasterize_mesh(mesh, cam)
-        masks.append(fr.mask.cpu().numpy().astype(bool))
+        maps = view_maps(rasterize_mesh(mesh, cam), mesh)
+        masks.append(maps["mask"].cpu().numpy().astype(bool))
         if depth:
-            depths.append(torch.where(fr.mask, fr.depth, torch.nan).cpu().numpy())
+            depths.append(maps["depth"].cpu().numpy())
         if lut is not None:
-            group = torch.where(fr.mask, mesh.groups.to(fr.face.device)[fr.face.clamp_min(0)], -1)
-            labels.append(lut.to(group.device)[group].cpu().numpy())
+            labels.append(lut.to(maps["groups"].device)[maps["groups"]].cpu().numpy())
     return Views(np.stack(masks), np.stack(depths) if depth else None, np.stack(labels) if parts else None,
                  parts)
 

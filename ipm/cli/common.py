@@ -129,7 +129,7 @@ def resolve_params(gen, preset: str | None, params_file: Path | None, sets: list
         values.update(gen.spec.random(rng))
     if params_file is not None:
         name, raw = load_param_file(params_file)
-        same = name in (None, gen.name) or (gen.kind == "sdf" and name == "sdftree")
+        same = name in (None, gen.name, getattr(gen, "file_format", None))
         if not same:
             raise UsageError(f"parameter file {params_file} is for generator {name!r}, not {gen.name!r}")
         values.update(raw)

@@ -63,11 +63,7 @@ def register(app: typer.Typer) -> None:
         check_resolution_option(resolution, upper=False)
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
         values = resolve_params(g, preset, params, set_, random, seed)
-        if g.kind == "sdf":
-            from ipm.sdf.meshing import check_resolution
-
-            tree = g.tree.with_values(values)
-            check_resolution(resolution, *tree.bounds())
+        g.check_meshing(values, resolution)
         check_resolution_option(resolution)
         mesh = g.to_mesh(values, resolution=resolution, lod=lod)
         if mesh.n_faces == 0:

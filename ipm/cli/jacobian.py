@@ -30,7 +30,6 @@ from ipm.cli.common import (
     resolve_device,
     resolve_params,
     resolve_subdivision,
-    seed_everything,
 )
 
 if TYPE_CHECKING:
@@ -64,30 +63,6 @@ def _largest_coordinate(dtype: str) -> float:
     import numpy as np
 
     return float(np.sqrt(np.finfo(dtype).max)) / 16
-
-
-def _subdivided_vertices(faces, n_verts: int, levels: int) -> int:
-    """The vertices after ``levels`` levels of a linear scheme (loop, midpoint): each level adds one vertex
-    per edge, E' = 2E + 3F, F' = 4F (counted, not built)."""
-    import numpy as np
-
-    F = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    v, e, f = n_verts, len(np.unique(edges, axis=0)), len(F)
-    for _ in range(levels):
-        v, e, f = v + e, 2 * e + 3 * f, 4 * f
-    return v
-
-
-def _refuse_non_finite(arrays: dict, dtype: str, where: str) -> None:
-    """Refuse a result with NaN or infinite entries (float32 overflow, points far away) instead of writing it."""
-    import torch
-
-    for name, a in arrays.items():
-        bad = int((~torch.isfinite(a)).sum())
-        if bad:
-            raise UsageError(f"{where}: expected a finite Jacobian, got {bad:,} NaN or infinite entries in {name} "
-                             f"with --dtype {dtype}; use --dtype float64, or points nearer the shape")
 
 
 def register(app: typer.Typer) -> None:
@@ -125,16 +100,10 @@ def register(app: typer.Typer) -> None:
         import numpy as np
         import torch
 
+        from ipm.errors import InputError
         from ipm.files import write_bytes
         from ipm.generators import get_generator
-        from ipm.jacobian import (
-            MODES,
-            check_entries,
-            check_mesh_jacobian,
-            check_sdf_jacobian,
-            mesh_jacobian,
-            sdf_jacobian,
-        )
+        from ipm.jacobian import MODES, OUTPUTS, check_entries, output_jacobian
 
         check_output(output, (".npz",))
         if mode not in MODES:
@@ -152,88 +121,29 @@ def register(app: typer.Typer) -> None:
         dev = resolve_device(device)
         dt = getattr(torch, dtype)
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
-        if subdivide is not None and g.kind != "mesh":
+        field = OUTPUTS[g.kind].takes_points
+        if subdivide is not None and field:
             raise UsageError(f"--subdivide: applies to mesh generators; {gen} is an SDF generator")
         for opt, v in (("--points", points), ("--n-points", n_points)):
-            if v is not None and g.kind == "mesh":
+            if v is not None and not field:
                 raise UsageError(f"{opt}: applies to SDF generators; {gen} is a mesh generator, whose Jacobian "
                                  "is of its own vertices")
         values = resolve_params(g, preset, params, set_, random, seed)
-        theta, discrete = g.split(values, dt, dev)
-        names = [p.name for p in g.spec.continuous]
-        out: dict[str, np.ndarray] = {}
-        if g.kind == "sdf":
-            tree = g.tree_for(discrete)
-            loaded = _load_points(points, dtype) if points is not None else None
-            n_rows = len(loaded) if loaded is not None else n_points or 10000
-            cols = len(names) + 3
-            check_entries(n_rows, cols, f"the Jacobian of {n_rows:,} points" if points is None else
-                          f"points file {points}", f"at most {MAX_ENTRIES // cols:,} points here")
-            if loaded is not None:
-                pts = torch.as_tensor(loaded, dtype=dt, device=dev)
-            else:
-                rng = seed_everything(seed)
-                lo, hi = tree.with_theta(theta).bounds()
-                pad = 0.1 * (hi - lo).max()
-                pts = torch.as_tensor(rng.uniform(lo - pad, hi + pad, size=(n_rows, 3)), dtype=dt, device=dev)
-
-            def f(th, p):
-                return tree.sdf(th, p)
-
-            J = sdf_jacobian(f, theta, pts, mode)
-            values_at = f(theta, pts).detach()
-            _refuse_non_finite({"J": J, "sdf": values_at}, dtype,
-                               f"points file {points}" if points is not None else f"{gen} at {n_rows:,} points")
-            out.update(points=pts.cpu().numpy(), sdf=values_at.cpu().numpy())
-            names = names + ["p.x", "p.y", "p.z"]
-            result = {"kind": "sdf", "shape": list(J.shape)}
-            if check:
-                chk = check_sdf_jacobian(f, theta, pts[:2000], mode=mode)
-        else:
-            def f(th):
-                return g.mesh(th, discrete, lod).verts
-
-            own = getattr(g, "jacobian", None)
-            if mode == "auto" and own is not None:
-                # the generator's structured forward mode (closed-form rings, 3x3 blocks): same values
-                def jac(th):
-                    return own(th, discrete, lod)
-            else:
-                def jac(th):
-                    return mesh_jacobian(f, th, mode)
-
-            mesh = g.mesh(theta, discrete, lod)
-            if subdivide is not None:
-                rows = 3 * _subdivided_vertices(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
-                check_entries(rows, len(names), f"--subdivide {subdivide} --levels {levels}",
-                              f"3 x {rows // 3:,} vertices after {levels} level(s) x {len(names)} parameters; use "
-                              "fewer --levels")
-            else:
-                check_entries(3 * mesh.n_verts, len(names), f"{gen}", "use a lower --lod")
-            if subdivide is not None:
-                # the subdivided mesh is S V(theta) with S fixed by the faces: its Jacobian is S J
-                op, sub_faces = scheme.operator(mesh.faces.cpu().numpy(), mesh.n_verts, levels)
-                coarse_f, coarse_jac = f, jac
-
-                def f(th):
-                    return op(coarse_f(th))
-
-                def jac(th):
-                    J0 = coarse_jac(th)
-                    return op(J0.reshape(J0.shape[0] // 3, -1)).reshape(-1, J0.shape[1])
-
-                verts, faces = f(theta), sub_faces
-            else:
-                verts, faces = mesh.verts, mesh.faces.cpu().numpy()
-            J = jac(theta)
-            _refuse_non_finite({"J": J, "vertices": verts.detach()}, dtype, f"{gen} at these parameters")
-            out.update(verts=verts.detach().cpu().numpy(), faces=faces)
-            result = {"kind": "mesh", "shape": list(J.shape),
-                      "method": "structured" if mode == "auto" and own is not None else mode}
-            if subdivide is not None:
-                result["subdivided"] = f"{subdivide} x{levels}"
-            if check:
-                chk = check_mesh_jacobian(f, theta, jac(theta.double()))
+        pts = None
+        if points is not None:
+            loaded = _load_points(points, dtype)
+            cols = g.spec.n_continuous + 3
+            check_entries(len(loaded), cols, f"points file {points}", f"at most {MAX_ENTRIES // cols:,} points here")
+            pts = torch.as_tensor(loaded, dtype=dt, device=dev)
+        try:
+            res = output_jacobian(g, values, dtype=dt, device=dev, mode=mode, lod=lod, points=pts,
+                                  n_points=n_points or 10_000, seed=seed, scheme=scheme, levels=levels, check=check)
+        except InputError as e:
+            raise UsageError(str(e).replace(f"{g.name} at {len(pts):,} points", f"points file {points}")
+                             if pts is not None else str(e)) from None
+        J, names, result, chk = res.J, res.names, dict(res.info), res.check
+        out = {k: (v.cpu().numpy() if torch.is_tensor(v) else v) for k, v in res.arrays.items()}
+        theta = g.split(values, dt, dev)[0]
         out.update(J=J.detach().cpu().numpy(), theta=theta.cpu().numpy(), names=np.array(names))
         buf = io.BytesIO()
         np.savez_compressed(buf, **out)

@@ -67,10 +67,7 @@ def _source_mesh(source: str, up: str, normalize: bool, resolution: int, library
     g = get_generator(source, library=[str(p) for p in library] if library else None)
     values = resolve_params(g, param_opts["--preset"], param_opts["--params"], param_opts["--set"],
                             param_opts["--random"], param_opts["seed"])
-    if g.kind == "sdf":
-        from ipm.sdf.meshing import check_resolution
-
-        check_resolution(resolution, *g.tree.with_values(values).bounds())
+    g.check_meshing(values, resolution)
     check_resolution_option(resolution)
     mesh = g.to_mesh(values, resolution=resolution)
     if mesh.n_faces == 0 or surface_area(mesh) <= 0:
@@ -159,28 +156,6 @@ def _check_output_folder(output: Path, overwrite: bool, masks: Path | None) -> N
     check_writable(output / CAMERAS_FILE)
 
 
-def _cue_maps(fr, mesh) -> dict:
-    """Depth (NaN where empty), normals, mask and part labels (-1 background; None without parts) of one view."""
-    import torch
-
-    depth = torch.where(fr.mask, fr.depth, torch.full_like(fr.depth, float("nan")))
-    parts = None
-    if mesh.groups is not None and mesh.group_names:
-        groups = mesh.groups.to(fr.face.device)
-        parts = torch.where(fr.mask, groups[fr.face.clamp_min(0)], torch.full_like(fr.face, -1))
-    return {"depth": depth, "normal": fr.normal, "mask": fr.mask, "parts": parts}
-
-
-def _save_cues(folder: Path, i: int, m: dict) -> None:
-    """View ``i``'s depth, normals and part labels."""
-    from ipm.io.cues import depth_name, normal_name, part_name, write_depth, write_normals, write_parts
-
-    write_depth(folder / depth_name(i), m["depth"])
-    write_normals(folder / normal_name(i), m["normal"], m["mask"])
-    if m["parts"] is not None:
-        write_parts(folder / part_name(i), m["parts"])
-
-
 def _check_outside(mesh, cameras) -> None:
     """Every vertex must be in front of every camera (a camera inside the object cannot see it whole)."""
     from ipm.render.camera import project
@@ -238,17 +213,12 @@ def register(app: typer.Typer) -> None:
         json_out: JsonOpt = False,
     ) -> None:
         """Render exact masks (view_000.png ...), cameras.json and shaded previews (preview_000.png ...)."""
-        import logging
-
         import numpy as np
 
-        from ipm.files import staged_directory, write_text
-        from ipm.io.cues import depth_name, part_name, write_part_names
-        from ipm.io.masks import CAMERAS_FILE, view_name, write_mask
-        from ipm.metrics import touches_border
-        from ipm.render.camera import cameras_to_json
-        from ipm.render.preview import save_png, shade_fragments
-        from ipm.render.raster import rasterize
+        from ipm.files import staged_directory
+        from ipm.io.cues import depth_name, part_name
+        from ipm.io.masks import CAMERAS_FILE, view_name
+        from ipm.viz.render_set import write_render_set
 
         if up.lower() not in ("y", "z"):
             raise UsageError(f"--up: expected y or z, got {up!r}")
@@ -260,39 +230,10 @@ def register(app: typer.Typer) -> None:
         _check_outside(mesh, cams)
 
         result = {"dir": str(output), "views": len(cams), "faces": mesh.n_faces, **about}
-        ious, empty, clipped = [], [], []
-        parts = cues and mesh.groups is not None and bool(mesh.group_names)
-        # one view at a time: rendered, written into the staged folder, dropped
+        compare = None if target is None else target.masks.numpy()
         with staged_directory(output, replace=is_render_file if overwrite else None) as tmp:
-            for i, cam in enumerate(cams):
-                fr = rasterize(mesh.verts, mesh.faces, cam, near=NEAR)
-                m = fr.mask.cpu().numpy()
-                if not m.any():
-                    empty.append(i)
-                elif touches_border(m):
-                    clipped.append(i)
-                write_mask(tmp / view_name(i), m)
-                if cues:
-                    _save_cues(tmp, i, _cue_maps(fr, mesh))
-                if preview_views:
-                    save_png(tmp / f"preview_{i:03d}.png", shade_fragments(fr, cam, mesh))
-                if target is not None:
-                    from ipm.viz import mask_iou, overlay
-
-                    t = target.masks[i, : cam.height, : cam.width].numpy()
-                    ious.append(mask_iou(t, m))
-                    overlay(t, m, f"view {i}").save(tmp / f"overlay_{i:03d}.png", format="PNG")
-                del fr, m
-            write_text(tmp / CAMERAS_FILE, cameras_to_json(cams))
-            if parts:
-                write_part_names(tmp, mesh.group_names)
-            if empty:
-                logging.getLogger("ipm").warning("the object is outside views %s: their masks are empty",
-                                                 ", ".join(map(str, empty)))
-            if clipped:
-                logging.getLogger("ipm").warning("the object touches the image border in views %s: a fit "
-                                                 "cannot see where it ends (use --normalize or move the "
-                                                 "cameras out)", ", ".join(map(str, clipped)))
+            done = write_render_set(tmp, mesh, cams, cues=cues, previews=preview_views, compare=compare, near=NEAR)
+        ious, parts = done.ious, done.parts
         result["masks"] = [str(output / view_name(i)) for i in range(len(cams))]
         if cues:
             result["depth"] = [str(output / depth_name(i)) for i in range(len(cams))]

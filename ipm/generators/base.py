@@ -100,9 +100,23 @@ class Generator(ABC):
                 lod: Any = None) -> TriMesh:
         """A mesh for export and pictures (SDF generators mesh by marching cubes at ``resolution``)."""
 
+    def check_meshing(self, values: Mapping[str, Value], resolution: int) -> None:
+        """Refuse (:class:`InputError`, with the largest resolution that fits) a meshing ``resolution`` whose grid
+        would not fit in memory at ``values``; a generator that makes meshes itself (at a level of detail) has
+        nothing to check. Generators meshed from a field override it (:func:`check_field_meshing`)."""
+        return None
+
     def metadata(self, values: Mapping[str, Value]) -> dict:
         """What travels with exported meshes (GLB extras and the ``.params.json`` sidecar)."""
         return {"generator": self.name, "params": dict(values)}
+
+
+def check_field_meshing(tree, values: Mapping[str, Value], resolution: int) -> None:
+    """:meth:`Generator.check_meshing` of a generator meshed from its field ``tree`` (marching cubes over the
+    field's bounds at ``values``)."""
+    from ipm.sdf.meshing import check_resolution
+
+    check_resolution(resolution, *tree.with_values(values).bounds())
 
 
 def get_generator(name: str, *, library: list[str] | None = None) -> Generator:

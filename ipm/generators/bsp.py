@@ -52,7 +52,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
-from ipm.generators.base import Generator, ValuesField, check_format, register_generator
+from ipm.generators.base import Generator, ValuesField, check_field_meshing, check_format, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -368,6 +368,10 @@ class BspGenerator(Generator):
         """Exact polytope of the selection (a relaxed ``T`` and ``W`` are thresholded at ``threshold``)."""
         planes, T, W = self.planes_and_selection(values)
         return polytope_mesh(planes, (T >= threshold) & (W >= threshold), self.extent)
+
+    def check_meshing(self, values: Mapping[str, Value], resolution: int) -> None:
+        """Marching cubes over the field's bounds: the grid must fit in memory (:func:`check_field_meshing`)."""
+        check_field_meshing(self.tree, values, resolution)
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
         """Exact polytope mesh when ``T`` and ``W`` are binary; marching cubes of the relaxed field otherwise."""

@@ -35,7 +35,7 @@ import numpy as np
 import torch
 
 from ipm.errors import InputError
-from ipm.generators.base import Generator, ValuesField, check_format, register_generator
+from ipm.generators.base import Generator, ValuesField, check_field_meshing, check_format, register_generator
 from ipm.params import Param, ParamSpec, Value
 from ipm.types import TriMesh
 
@@ -254,6 +254,10 @@ class PerturbGenerator(Generator):
     def sdf(self, theta: torch.Tensor, points: torch.Tensor, discrete: Mapping[str, int] | None = None):
         """``F (...)`` at ``points (..., 3)``, negative inside; differentiable in ``theta`` and points."""
         return field(theta, points, self.n)
+
+    def check_meshing(self, values: Mapping[str, Value], resolution: int) -> None:
+        """Marching cubes over the field's bounds: the grid must fit in memory (:func:`check_field_meshing`)."""
+        check_field_meshing(self.tree, values, resolution)
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
         """Marching cubes of ``F`` on a full grid over :meth:`PerturbField.bounds` (``resolution`` samples

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import torch
 
-from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, register_generator
+from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, check_field_meshing, register_generator
 from ipm.params import Value
 from ipm.sdf.meshing import mesh_sdf
 from ipm.sdf.tree import Tree, load_tree, tree_from_json
@@ -32,6 +32,8 @@ class SdfTreeGenerator(Generator):
     """Generator over one SDF tree; discrete node values (counts, axes) are parameters too."""
 
     kind = "sdf"
+    # what parameter files written from any tree say they are for (a named tree preset's name is its own)
+    file_format = "sdftree"
 
     def __init__(self, tree: Tree, name: str = "sdftree", source: str | None = None):
         self.tree = tree
@@ -62,6 +64,10 @@ class SdfTreeGenerator(Generator):
 
     def sdf(self, theta: torch.Tensor, points: torch.Tensor, discrete: Mapping[str, int] | None = None):
         return self.tree_for(discrete or {}).sdf(theta, points)
+
+    def check_meshing(self, values: Mapping[str, Value], resolution: int) -> None:
+        """Marching cubes over the field's bounds: the grid must fit in memory (:func:`check_field_meshing`)."""
+        check_field_meshing(self.tree, values, resolution)
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
         tree = self.tree.with_values(values)

@@ -124,3 +124,15 @@ def hard_mask(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, **kw) ->
 def rasterize_mesh(mesh: TriMesh, camera: Camera, **kw) -> Fragments:
     """:func:`rasterize` for a :class:`~ipm.types.TriMesh`."""
     return rasterize(mesh.verts, mesh.faces, camera, **kw)
+
+
+def view_maps(fr: Fragments, mesh: TriMesh) -> dict:
+    """What one exact view shows beyond its mask: ``depth (H, W)`` view-axis depth (NaN off the object),
+    ``normal (H, W, 3)``, ``mask (H, W)`` bool and ``groups (H, W)`` int64, the mesh group of the visible face
+    (-1 off the object; None for a mesh without groups). What ``ipm render`` writes and the bench gives as cues."""
+    depth = torch.where(fr.mask, fr.depth, torch.full_like(fr.depth, float("nan")))
+    groups = None
+    if mesh.groups is not None and mesh.group_names:
+        g = mesh.groups.to(fr.face.device)
+        groups = torch.where(fr.mask, g[fr.face.clamp_min(0)], torch.full_like(fr.face, -1))
+    return {"depth": depth, "normal": fr.normal, "mask": fr.mask, "groups": groups}

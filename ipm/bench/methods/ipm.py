@@ -70,9 +70,11 @@ def parse_settings(name: str, settings: dict) -> IpmSettings:
                                  or not MAX_SIZE[0] <= max_size <= MAX_SIZE[1]):
         raise InputError(f"{name}: setting max_size: expected an integer in [{MAX_SIZE[0]}, {MAX_SIZE[1]}], "
                          f"got {max_size!r}")
+    from ipm.optim.shapes import SHAPES
+
     cues = NO_CUES
     if "cues" in settings:
-        if gen.kind != "mesh":
+        if not SHAPES.get(gen.kind).has_faces:
             raise InputError(f"{name}: setting cues: expected none for the SDF generator {g} (depth and part "
                              f"labels are compared on a mesh generator's faces), got {settings['cues']!r}")
         parts = tuple(gen.parts) or gen.to_mesh(gen.values(preset)).group_names
