@@ -30,6 +30,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from ipm.curves.hermite import sample_cells_np
@@ -173,6 +175,50 @@ def _hermite_bridge(qa: np.ndarray, ta: np.ndarray, qb: np.ndarray, tb: np.ndarr
     return h00 * qa + h01 * qb + h10 * (d * ta) - h11 * (d * tb)
 
 
+def _free_ends(curves: list[tuple[np.ndarray, bool]],
+               direction: Callable[[np.ndarray], np.ndarray]) -> list[tuple[int, int, np.ndarray, np.ndarray]]:
+    """The ends of the open curves of two points or more: (curve, side (0 its first point, 1 its last),
+    the end point (2,), ``direction(q)``: the outward unit direction (2,) of the polyline ``q`` (n, 2) that
+    ends there)."""
+    ends = []
+    for k, (p, closed) in enumerate(curves):
+        if closed or len(p) < 2:
+            continue
+        for side in (0, 1):
+            q = p if side == 1 else p[::-1]
+            ends.append((k, side, q[-1], direction(q)))
+    return ends
+
+
+def _chord_direction(q: np.ndarray) -> np.ndarray:
+    """The outward unit direction (2,) at the end q[-1] of a polyline: from its point about 3 pixels back."""
+    s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q[::-1], axis=0), axis=1))])
+    j = min(int(np.searchsorted(s, 3.0)), len(q) - 1)
+    out = q[-1] - q[::-1][j]
+    return out / (np.linalg.norm(out) + 1e-12)
+
+
+def _closest_pair(ends: list[tuple], curves: list[tuple[np.ndarray, bool]], reach: float, refused: set[tuple],
+                  fits: Callable[[tuple, tuple, np.ndarray, float], bool] | None = None) -> tuple | None:
+    """The closest pair of free ``ends`` (:func:`_free_ends`) less than ``reach`` apart that ``fits(end x,
+    end y, gap vector y - x, distance)`` accepts, whose points are not ``refused`` and which are not the
+    two ends of one curve shorter than 4 ``reach``: (distance, end x, end y), or None."""
+    best = None
+    for x in range(len(ends)):
+        for y in range(x + 1, len(ends)):
+            v = ends[y][2] - ends[x][2]
+            d = float(np.linalg.norm(v))
+            if not d < reach or (fits is not None and not fits(ends[x], ends[y], v, d)):
+                continue
+            if ends[x][0] == ends[y][0] and _length(curves[ends[x][0]][0]) < 4.0 * reach:
+                continue
+            if (tuple(ends[x][2]), tuple(ends[y][2])) in refused:
+                continue
+            if best is None or d < best[0]:
+                best = (d, ends[x], ends[y])
+    return best
+
+
 def bridge_gaps(curves: list[tuple[np.ndarray, bool]], bridge: float,
                 ink: np.ndarray | None = None) -> list[tuple[np.ndarray, bool]]:
     """Open curves whose ends lie within ``bridge`` pixels and point at each other (outward directions
@@ -183,32 +229,14 @@ def bridge_gaps(curves: list[tuple[np.ndarray, bool]], bridge: float,
     zero, not the arms of a junction)."""
     curves = [(np.asarray(p, float), c) for p, c in curves]
     refused: set[tuple] = set()
+
+    def fits(ex: tuple, ey: tuple, v: np.ndarray, d: float) -> bool:
+        if ink is not None and ex[3] @ ey[3] > -0.5:
+            return False  # a turn of over 60 degrees: rather the two sides of a T or a corner
+        return 0 < d and ex[3] @ v > 0.5 * d and ey[3] @ -v > 0.5 * d
+
     while True:
-        ends = []
-        for k, (p, closed) in enumerate(curves):
-            if closed or len(p) < 2:
-                continue
-            for side in (0, 1):
-                q = p if side == 1 else p[::-1]
-                s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(q[::-1], axis=0), axis=1))])
-                j = min(int(np.searchsorted(s, 3.0)), len(q) - 1)
-                out = q[-1] - q[::-1][j]
-                ends.append((k, side, q[-1], out / (np.linalg.norm(out) + 1e-12)))
-        best = None
-        for x in range(len(ends)):
-            for y in range(x + 1, len(ends)):
-                v = ends[y][2] - ends[x][2]
-                d = float(np.linalg.norm(v))
-                if ink is not None and ends[x][3] @ ends[y][3] > -0.5:
-                    continue  # a turn of over 60 degrees: rather the two sides of a T or a corner
-                if 0 < d < bridge and ends[x][3] @ v > 0.5 * d and ends[y][3] @ -v > 0.5 * d:
-                    if ends[x][0] == ends[y][0] and _length(curves[ends[x][0]][0]) < 4 * bridge:
-                        continue
-                    key = (tuple(ends[x][2]), tuple(ends[y][2]))
-                    if key in refused:
-                        continue
-                    if best is None or d < best[0]:
-                        best = (d, ends[x], ends[y])
+        best = _closest_pair(_free_ends(curves, _chord_direction), curves, bridge, refused, fits)
         if best is None:
             return curves
         _, (ka, sa, qa, ta), (kb, sb, qb, tb) = best
@@ -264,25 +292,7 @@ def join_corners(curves: list[tuple[np.ndarray, bool]], reach: float, r: float,
     curves = [c for k, c in enumerate(curves) if k not in dropped]
     refused: set[tuple] = set()
     while True:
-        ends = []
-        for k, (p, closed) in enumerate(curves):
-            if closed or len(p) < 2:
-                continue
-            for side in (0, 1):
-                q = p if side == 1 else p[::-1]
-                ends.append((k, side, q[-1], _end_direction(q, r)))
-        best = None
-        for x in range(len(ends)):
-            for y in range(x + 1, len(ends)):
-                d = float(np.linalg.norm(ends[y][2] - ends[x][2]))
-                if not d < reach:
-                    continue
-                if ends[x][0] == ends[y][0] and _length(curves[ends[x][0]][0]) < 4.0 * reach:
-                    continue
-                if (tuple(ends[x][2]), tuple(ends[y][2])) in refused:
-                    continue
-                if best is None or d < best[0]:
-                    best = (d, ends[x], ends[y])
+        best = _closest_pair(_free_ends(curves, lambda q: _end_direction(q, r)), curves, reach, refused)
         if best is None:
             return curves
         d, (ka, sa, qa, ta), (kb, sb, qb, tb) = best
@@ -368,60 +378,111 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
     curves = [(resample(p, spacing, c), c) for p, c in curves if _length(p) > spacing]
     if not curves:
         return [], np.zeros((0, 2)), np.zeros((0, 2))
-    owner = np.concatenate([np.full(len(p), k) for k, (p, _) in enumerate(curves)])
-    index = np.concatenate([np.arange(len(p)) for p, _ in curves])
-    allpts = np.concatenate([p for p, _ in curves])
-    tree = cKDTree(allpts)
+    smp = _Samples(curves, spacing)
     nodes = _Nodes()
     cuts: list[dict[int, int]] = [{} for _ in curves]  # per curve: sample index -> node id
+    _cut_crossings(smp, _close_pairs(smp, reach, touch, r, ink), nodes, cuts, reach)
+    _cut_free_ends(smp, nodes, cuts, snap, extend, r, ink)
+    if len(nodes.pos) > 1:
+        for a, b in cKDTree(np.array(nodes.pos)).query_pairs(merge):
+            nodes.union(a, b)
+    edges, loops = _cut_edges(curves, cuts, nodes)
+    pos = _node_positions(nodes)
+    for e in edges:
+        e[2] = e[2].copy()
+        e[2][0], e[2][-1] = pos[e[0]], pos[e[1]]
+    edges = [e for e in edges if not (e[0] == e[1] and _length(e[2]) < 2.0 * merge)]
+    edges = _contract(_prune(edges, spur), pos, spur)
+    deg = _degrees(edges)
+    junctions, endpoints = _place_nodes(edges, pos, deg, size, reach, r, ink)
+    out = [(q, True) for q in loops] + _through(edges, pos, deg, r)
+    return out, junctions, endpoints
 
-    def apart(a, b, gap: float):
-        """Samples a and b lie on different curves, or far apart along one (arrays or ints)."""
+
+class _Samples:
+    """The samples of all curves in one array: ``allpts`` (n, 2) float64 with their KD-tree, and per
+    sample its curve (``owner``, (n,) int) and its index along that curve (``index``, (n,) int)."""
+
+    def __init__(self, curves: list[tuple[np.ndarray, bool]], spacing: float) -> None:
+        from scipy.spatial import cKDTree
+
+        self.curves, self.spacing = curves, spacing
+        self.owner = np.concatenate([np.full(len(p), k) for k, (p, _) in enumerate(curves)])
+        self.index = np.concatenate([np.arange(len(p)) for p, _ in curves])
+        self.allpts = np.concatenate([p for p, _ in curves])
+        self.tree = cKDTree(self.allpts)
+
+    def apart(self, a, b, gap: float):
+        """Samples a and b lie on different curves, or more than ``gap`` apart along one (the short way
+        round a closed one): bool, for arrays of sample indices or ints."""
+        curves, owner, index = self.curves, self.owner, self.index
         a, b = np.asarray(a), np.asarray(b)
         d = np.abs(index[a] - index[b])
         n = np.array([len(curves[k][0]) - 1 if curves[k][1] else 0 for k in range(len(curves))])[owner[a]]
         d = np.where(n > 0, np.minimum(d, n - d), d)
-        return (owner[a] != owner[b]) | (d * spacing > gap)
+        return (owner[a] != owner[b]) | (d * self.spacing > gap)
 
-    # crossings and touchings: clusters of close sample pairs, one node at each cluster's closest pair
-    pairs = tree.query_pairs(reach, output_type="ndarray").reshape(-1, 2)
-    pairs = pairs[apart(pairs[:, 0], pairs[:, 1], 4.0 * reach + 2.0 * r)]
+
+def _close_pairs(smp: _Samples, reach: float, touch: float, r: float,
+                 ink: np.ndarray | None) -> list[tuple[int, int]]:
+    """Pairs of samples within ``reach`` of each other that lie apart (:meth:`_Samples.apart`, by more than
+    4 reach + 2 r): with ``ink``, those farther than ``touch`` only where ink runs all the way between them
+    (a crossing's saddle, not two strokes passing close)."""
+    allpts = smp.allpts
+    pairs = smp.tree.query_pairs(reach, output_type="ndarray").reshape(-1, 2)
+    pairs = pairs[smp.apart(pairs[:, 0], pairs[:, 1], 4.0 * reach + 2.0 * r)]
     if len(pairs) and ink is not None:
         gap = np.linalg.norm(allpts[pairs[:, 0]] - allpts[pairs[:, 1]], axis=1)
         f = np.linspace(0.0, 1.0, 7)[None, :, None]
         seg = allpts[pairs[:, 0]][:, None] * (1 - f) + allpts[pairs[:, 1]][:, None] * f
         inked = on_ink(ink, seg.reshape(-1, 2)).reshape(len(pairs), -1).all(axis=1)
         pairs = pairs[(gap <= touch) | inked]
-    pairs = [tuple(ab) for ab in pairs.tolist()]
-    if pairs:
-        uf = _Nodes()
-        ids: dict[int, int] = {}
-        for a, b in pairs:
-            for t in (a, b):
-                if t not in ids:
-                    ids[t] = uf.add(allpts[t])
-            uf.union(ids[a], ids[b])
-        best: dict[int, tuple[float, int, int]] = {}
-        for a, b in pairs:
-            root = uf.find(ids[a])
-            d = float(np.linalg.norm(allpts[a] - allpts[b]))
-            if root not in best or d < best[root][0]:
-                best[root] = (d, a, b)
-        members: dict[int, list[int]] = {}
-        for t, i in ids.items():
-            members.setdefault(uf.find(i), []).append(t)
-        for root, (_, a, b) in best.items():
-            # every stretch of curve in the cluster is cut at its sample nearest the node (a crossing's
-            # saddle may leave three or four pieces there, not two)
-            at = 0.5 * (allpts[a] + allpts[b])
-            nid = nodes.add(at)
-            group = np.array(sorted(members[root], key=lambda t: (owner[t], index[t])))
-            split = np.flatnonzero((np.diff(owner[group]) != 0) | (np.diff(index[group]) * spacing > 2.0 * reach))
-            for run in np.split(group, split + 1):
-                t = run[np.argmin(np.linalg.norm(allpts[run] - at, axis=1))]
-                cuts[owner[t]][int(index[t])] = nid
-    # free ends: a node each, moved onto a nearby curve (which is cut there)
-    for k, (p, closed) in enumerate(curves):
+    return [tuple(ab) for ab in pairs.tolist()]
+
+
+def _cut_crossings(smp: _Samples, pairs: list[tuple[int, int]], nodes: _Nodes, cuts: list[dict[int, int]],
+                   reach: float) -> None:
+    """Crossings and touchings: the close ``pairs`` clustered (linked by a shared sample), one node per
+    cluster at the midpoint of its closest pair, and every stretch of curve in the cluster cut there
+    (``cuts`` updated: curve -> {sample index: node id})."""
+    if not pairs:
+        return
+    allpts, owner, index = smp.allpts, smp.owner, smp.index
+    uf = _Nodes()
+    ids: dict[int, int] = {}
+    for a, b in pairs:
+        for t in (a, b):
+            if t not in ids:
+                ids[t] = uf.add(allpts[t])
+        uf.union(ids[a], ids[b])
+    best: dict[int, tuple[float, int, int]] = {}
+    for a, b in pairs:
+        root = uf.find(ids[a])
+        d = float(np.linalg.norm(allpts[a] - allpts[b]))
+        if root not in best or d < best[root][0]:
+            best[root] = (d, a, b)
+    members: dict[int, list[int]] = {}
+    for t, i in ids.items():
+        members.setdefault(uf.find(i), []).append(t)
+    for root, (_, a, b) in best.items():
+        # every stretch of curve in the cluster is cut at its sample nearest the node (a crossing's
+        # saddle may leave three or four pieces there, not two)
+        at = 0.5 * (allpts[a] + allpts[b])
+        nid = nodes.add(at)
+        group = np.array(sorted(members[root], key=lambda t: (owner[t], index[t])))
+        split = np.flatnonzero((np.diff(owner[group]) != 0) | (np.diff(index[group]) * smp.spacing > 2.0 * reach))
+        for run in np.split(group, split + 1):
+            t = run[np.argmin(np.linalg.norm(allpts[run] - at, axis=1))]
+            cuts[owner[t]][int(index[t])] = nid
+
+
+def _cut_free_ends(smp: _Samples, nodes: _Nodes, cuts: list[dict[int, int]], snap: float, extend: float,
+                   r: float, ink: np.ndarray | None) -> None:
+    """Free ends not cut yet: a node each, moved onto the nearest sample of another curve within ``snap``
+    (or, with ``ink``, onto the one it runs into when extended: :func:`_ray_hit`), which is cut there
+    and shares the node."""
+    allpts, owner, index = smp.allpts, smp.owner, smp.index
+    for k, (p, closed) in enumerate(smp.curves):
         if closed:
             continue
         first = int(np.flatnonzero(owner == k)[0])
@@ -430,12 +491,12 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
                 continue
             nid = nodes.add(p[i])
             cuts[k][i] = nid
-            near = [s for s in tree.query_ball_point(p[i], snap) if apart(first + i, s, 2.0 * snap)]
+            near = [s for s in smp.tree.query_ball_point(p[i], snap) if smp.apart(first + i, s, 2.0 * snap)]
             s = None
             if near:
                 s = min(near, key=lambda s: float(np.sum((allpts[s] - p[i]) ** 2)))
             elif ink is not None:
-                s = _ray_hit(p if i else p[::-1], first + i, tree, allpts, apart, extend, r, ink)
+                s = _ray_hit(p if i else p[::-1], first + i, smp.tree, allpts, smp.apart, extend, r, ink)
             if s is not None:
                 ko, io = int(owner[s]), int(index[s])
                 nodes.pos[nid] = allpts[s].copy()
@@ -443,12 +504,14 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
                     nodes.union(cuts[ko][io], nid)
                 else:
                     cuts[ko][io] = nid
-    # merge nodes closer than `merge`
-    if len(nodes.pos) > 1:
-        for a, b in cKDTree(np.array(nodes.pos)).query_pairs(merge):
-            nodes.union(a, b)
-    # edges between consecutive cuts
-    edges: list[list] = []  # [node a, node b, points]
+
+
+def _cut_edges(curves: list[tuple[np.ndarray, bool]], cuts: list[dict[int, int]],
+               nodes: _Nodes) -> tuple[list[list], list[np.ndarray]]:
+    """The curves cut at their ``cuts``: edges [node a, node b, points (n, 2)] between consecutive cuts
+    (around a closed curve: also from its last cut to its first), and the closed curves without a cut
+    (loops, their points)."""
+    edges: list[list] = []
     loops: list[np.ndarray] = []
     for k, (p, closed) in enumerate(curves):
         q = p
@@ -466,16 +529,21 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
         else:
             for a, b in zip(idx[:-1], idx[1:], strict=True):
                 edges.append([cut[a], cut[b], q[a:b + 1]])
+    return edges, loops
+
+
+def _node_positions(nodes: _Nodes) -> dict[int, np.ndarray]:
+    """Each merged node (its root) at the mean of the positions merged into it: {root: (2,) float64}."""
     pos = {nodes.find(i): None for i in range(len(nodes.pos))}
     for root in pos:
         members = [np.asarray(nodes.pos[i]) for i in range(len(nodes.pos)) if nodes.find(i) == root]
         pos[root] = np.mean(members, axis=0)
-    for e in edges:
-        e[2] = e[2].copy()
-        e[2][0], e[2][-1] = pos[e[0]], pos[e[1]]
-    edges = [e for e in edges if not (e[0] == e[1] and _length(e[2]) < 2.0 * merge)]
-    # prune short spurs hanging off junctions, and the shorter of two short edges joining the same nodes
-    # (a bubble: the zero set touching a cell border twice)
+    return pos
+
+
+def _prune(edges: list[list], spur: float) -> list[list]:
+    """Short spurs (shorter than ``spur``) hanging off junctions removed, and the shorter of two short edges
+    joining the same nodes (a bubble: the zero set touching a cell border twice), up to four passes."""
     for _ in range(4):
         deg = _degrees(edges)
         keep = [e for e in edges if not (_length(e[2]) < spur and (
@@ -492,8 +560,15 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
         if len(keep) == len(edges):
             break
         edges = keep
-    edges = _contract(edges, pos, spur)
-    deg = _degrees(edges)
+    return edges
+
+
+def _place_nodes(edges: list[list], pos: dict, deg: dict[int, int], size: tuple[int, int], reach: float,
+                 r: float, ink: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """With ``ink``: junctions placed where their arms meet (:func:`_place_junction`) and free ends away
+    from the image border trimmed to the ink (:func:`_trim_end`), ``pos`` and ``edges`` updated. Returns
+    the junctions (j, 2) (degree >= 3) and the endpoints (e, 2) (degree 1, farther than r + 1.5 from the
+    border), float64."""
     H, W = size
     border = r + 1.5
     if ink is not None:
@@ -505,8 +580,7 @@ def network(curves: list[tuple[np.ndarray, bool]], half_width: float, size: tupl
     junctions = [pos[n] for n, d in deg.items() if d >= 3]
     endpoints = [pos[n] for n, d in deg.items() if d == 1 and border < pos[n][0] < W - border
                  and border < pos[n][1] < H - border]
-    out = [(q, True) for q in loops] + _through(edges, pos, deg, r)
-    return (out, np.array(junctions).reshape(-1, 2), np.array(endpoints).reshape(-1, 2))
+    return np.array(junctions).reshape(-1, 2), np.array(endpoints).reshape(-1, 2)
 
 
 def _ray_hit(q: np.ndarray, end: int, tree, allpts: np.ndarray, apart, extend: float, r: float,
