@@ -318,8 +318,6 @@ def fit_bsp(mesh, *, planes: int = 16, convexes: int = 4, steps: int = 300, rela
     ``sample_accuracy``, ``iou_3d`` (polytope against the input in the normalized frame, 64^3
     winding-number grid) and ``seconds``.
     """
-    from ipm.metrics import iou_3d
-
     p = check_positive_int("planes", planes)
     c = check_positive_int("convexes", convexes)
     steps = check_positive_int("steps", steps)
@@ -331,12 +329,7 @@ def fit_bsp(mesh, *, planes: int = 16, convexes: int = 4, steps: int = 300, rela
     target = prepare(mesh)
     rng = np.random.default_rng(seed)
     gen_t = torch.Generator().manual_seed(seed)
-    # uniform samples over the whole domain box: a convex may reach anywhere in it, and only samples
-    # can tell it not to
-    n_far = samples // 10
-    pts, labels = occupancy_samples(target, samples // 2 - n_far, samples - samples // 2, rng)
-    far, far_in = occupancy_samples(target, n_far, 0, rng, box=(np.full(3, -extent), np.full(3, extent)))
-    pts, labels = np.vstack([pts, far]), np.concatenate([labels, far_in])
+    pts, labels = _occupancy(target, samples, extent, rng)
     X = torch.as_tensor(pts, dtype=torch.float32)
     occ = torch.as_tensor(labels, dtype=torch.float32)
     batch = min(batch, len(X))
@@ -349,14 +342,7 @@ def fit_bsp(mesh, *, planes: int = 16, convexes: int = 4, steps: int = 300, rela
             progress(done[0], total, {"stage": "stage 1" if done[0] <= s1 else "stage 2"})
 
     g = BspGenerator(p, c, extent=extent)
-    planes0 = merge_duplicates(initial_planes(target, p, rng), extent)
-    sub = rng.choice(len(pts), size=min(len(pts), 12_000), replace=False)
-    T0 = initial_selection(planes0, pts[sub], labels[sub], c, rng).astype(np.float64)
-    P0 = torch.as_tensor(planes0, dtype=torch.float32)
-    log.debug("bsp: initial guess %d errors", _errors(P0, T0 >= 0.5, X, occ, extent))
-    T0 = search_selection(P0, T0, X, occ, extent, T0 >= 0.5).astype(np.float64)
-    best = (_errors(P0, T0 >= 0.5, X, occ, extent), P0, T0 >= 0.5)
-    log.debug("bsp: settled guess %d errors of %d samples", best[0], len(X))
+    planes0, T0, best = _settled_guess(target, p, c, pts, labels, X, occ, extent, rng)
     P = torch.as_tensor(planes0, dtype=torch.float32).requires_grad_(True)
     T = torch.as_tensor(T0, dtype=torch.float32).requires_grad_(True)
     W = torch.ones(c, dtype=torch.float32, requires_grad=True)
@@ -377,7 +363,42 @@ def fit_bsp(mesh, *, planes: int = 16, convexes: int = 4, steps: int = 300, rela
     _, planes_t, sel = _keep_best(best, planes_t, sel, X, occ, extent, "refinement")
     if progress is not None:
         progress(total, total, {"stage": "export"})
+    return _bsp_conversion(planes_t, sel, g, target, X, occ, seed=seed, steps=steps, t0=t0)
 
+
+def _occupancy(target, samples: int, extent: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Occupancy samples (n, 3) float64 and their inside labels (n,): half of ``samples`` near the surface,
+    the rest uniform over the target's box, of which a tenth of ``samples`` over the whole domain box
+    ``[-extent, extent]^3`` (a convex may reach anywhere in it, and only samples can tell it not to)."""
+    n_far = samples // 10
+    pts, labels = occupancy_samples(target, samples // 2 - n_far, samples - samples // 2, rng)
+    far, far_in = occupancy_samples(target, n_far, 0, rng, box=(np.full(3, -extent), np.full(3, extent)))
+    return np.vstack([pts, far]), np.concatenate([labels, far_in])
+
+
+def _settled_guess(target, p: int, c: int, pts: np.ndarray, labels: np.ndarray, X: torch.Tensor,
+                   occ: torch.Tensor, extent: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """The initial guess settled by :func:`search_selection`: ``p`` planes (p, 4) float64 from the target,
+    their soft selection (p, c) float64 (0 or 1) into ``c`` convexes, and the best binary state so far,
+    (misclassified samples of ``X``, planes (p, 4) float32, selection (p, c) bool)."""
+    planes0 = merge_duplicates(initial_planes(target, p, rng), extent)
+    sub = rng.choice(len(pts), size=min(len(pts), 12_000), replace=False)
+    T0 = initial_selection(planes0, pts[sub], labels[sub], c, rng).astype(np.float64)
+    P0 = torch.as_tensor(planes0, dtype=torch.float32)
+    log.debug("bsp: initial guess %d errors", _errors(P0, T0 >= 0.5, X, occ, extent))
+    T0 = search_selection(P0, T0, X, occ, extent, T0 >= 0.5).astype(np.float64)
+    best = (_errors(P0, T0 >= 0.5, X, occ, extent), P0, T0 >= 0.5)
+    log.debug("bsp: settled guess %d errors of %d samples", best[0], len(X))
+    return planes0, T0, best
+
+
+def _bsp_conversion(planes_t: torch.Tensor, sel: np.ndarray, g: BspGenerator, target, X: torch.Tensor,
+                    occ: torch.Tensor, *, seed: int, steps: int, t0: float) -> Conversion:
+    """The fitted planes (p, 4) and selection (p, c) bool as a stage-2 :class:`BspGenerator` with its file
+    and stats (:func:`fit_bsp`), unit normals written (the field depends on their direction only)."""
+    from ipm.metrics import iou_3d
+
+    p, c = g.n_planes, g.n_convexes
     planes_np = planes_t.double().numpy()
     # unit normals in the file: the field only depends on the direction
     norm = np.linalg.norm(planes_np[:, :3], axis=1, keepdims=True)

@@ -618,8 +618,6 @@ def convert_perturb(mesh, *, max_functions: int = 2000, tolerance: float = 0.01,
         eps = check_positive("eps", eps)
     from scipy.spatial import cKDTree
 
-    from ipm.metrics import inside, point_to_surface
-
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
     target = prepare(mesh)
@@ -629,6 +627,38 @@ def convert_perturb(mesh, *, max_functions: int = 2000, tolerance: float = 0.01,
     eps = eps if eps is not None else 0.0025 * diag
     goal = tolerance * diag
     q = fit_base(V, N, eps, _hull_samples(V, min(4 * n, 20_000), rng), exact=0.1 * goal)
+    st = _sampled_state(target, q, eps, rng, surface_samples=surface_samples, volume_samples=volume_samples,
+                        truncation=truncation, normal_weight=normal_weight)
+    tree = cKDTree(st.X)
+    subset = np.sort(rng.choice(len(st.X), size=max(1, int(score_share * len(st.X))), replace=False))
+    tree_sub = cKDTree(st.X[subset])
+    # no function smaller than a few sample spacings: it could fit the samples and miss the surface between
+    tri = V[target.faces]
+    area = 0.5 * float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
+    r_min = max(2.5 * math.sqrt(area / st.S), 4 * eps)
+    q, P, rounds = _rounds(st, tree, tree_sub, subset, q, goal=goal, diag=diag, normal_tolerance=normal_tolerance,
+                           r_min=r_min, max_functions=max_functions, steps=steps, lr=lr, refit_growth=refit_growth,
+                           time_limit=time_limit, t0=t0, progress=progress)
+    stats = {"functions": len(P), "parameters": N_BASE + N_PERT * len(P), **quality(q, P, target)}
+    stats["reached"] = bool(stats["mean_deviation"] <= goal and stats["mean_normal_deviation_deg"] <= normal_tolerance)
+    stats["tolerance"] = tolerance
+    stats["normal_tolerance"] = normal_tolerance
+    stats["rounds"] = rounds
+    stats["seconds"] = time.perf_counter() - t0
+    return _conversion(q, P, target, seed, stats)
+
+
+def _sampled_state(target: Target, q: np.ndarray, eps: float, rng: np.random.Generator, *, surface_samples: int,
+                   volume_samples: int, truncation: float, normal_weight: float) -> _State:
+    """The samples and targets of the loss (module docstring) as a :class:`_State` whose field is not yet
+    evaluated: the vertices and ``surface_samples`` face points with their ``eps`` offsets, and volume
+    samples over the target's box and the base quadric ``q``'s (the base puts material there too), those
+    within ``2 eps`` of the surface dropped."""
+    from ipm.metrics import inside, point_to_surface
+
+    V, N = target.verts, target.normals
+    n = len(V)
+    diag = target.diagonal
     Fp, Fn = _face_samples(target, surface_samples, rng)
     On, On_n = np.vstack([V, Fp]), np.vstack([N, Fn])
     S = len(On)
@@ -642,20 +672,24 @@ def convert_perturb(mesh, *, max_functions: int = 2000, tolerance: float = 0.01,
     sv = np.where(inside(vol, V, target.faces), -1.0, 1.0)
     X = np.vstack([On, On + eps * On_n, On - eps * On_n, vol])
     tau = truncation * diag
-    st = _State(X, np.concatenate([np.zeros(S), np.full(S, eps), np.full(S, -eps), sv * np.minimum(dist, tau)]),
-                np.concatenate([np.zeros(3 * S), sv]), np.concatenate([np.zeros(3 * S), dist]),
-                np.concatenate([np.zeros(3 * S, bool), dist > tau]),
-                On_n, n, S, normal_weight * eps * eps, np.zeros(len(X)), np.zeros((S, 3)))
-    tree = cKDTree(X)
-    subset = np.sort(rng.choice(len(X), size=max(1, int(score_share * len(X))), replace=False))
-    tree_sub = cKDTree(X[subset])
-    # no function smaller than a few sample spacings: it could fit the samples and miss the surface between
-    tri = V[target.faces]
-    area = 0.5 * float(np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1).sum())
-    r_min = max(2.5 * math.sqrt(area / S), 4 * eps)
+    return _State(X, np.concatenate([np.zeros(S), np.full(S, eps), np.full(S, -eps), sv * np.minimum(dist, tau)]),
+                  np.concatenate([np.zeros(3 * S), sv]), np.concatenate([np.zeros(3 * S), dist]),
+                  np.concatenate([np.zeros(3 * S, bool), dist > tau]),
+                  On_n, n, S, normal_weight * eps * eps, np.zeros(len(X)), np.zeros((S, 3)))
+
+
+def _rounds(st: _State, tree, tree_sub, subset: np.ndarray, q: np.ndarray, *, goal: float, diag: float,
+            normal_tolerance: float, r_min: float, max_functions: int, steps: int, lr: float, refit_growth: float,
+            time_limit: float | None, t0: float, progress: Progress | None) -> tuple[np.ndarray, np.ndarray, int]:
+    """The rounds of step 2 of the module docstring, from the base quadric ``q`` (10,) alone until both
+    tolerances are met (mean vertex deviation ``goal``, mean normal deviation ``normal_tolerance``
+    degrees), ``max_functions`` are used, ``time_limit`` seconds since ``t0`` have passed or no seed is
+    left. ``tree`` indexes all samples, ``tree_sub`` the ``subset`` candidates are ranked on. Returns the
+    base (10,), the perturbations (P, N_PERT) and the rounds run, float64."""
+    n = st.n
     P = np.zeros((0, N_PERT))
     _evaluate(st, tree, q, P)
-    tabu = np.zeros(S, dtype=bool)
+    tabu = np.zeros(st.S, dtype=bool)
     log.info("perturb: base quadric, mean deviation %.4g (goal %.4g)", st.deviation()[:n].mean(), goal)
     rounds, refitted = 0, 4
 
@@ -691,22 +725,28 @@ def convert_perturb(mesh, *, max_functions: int = 2000, tolerance: float = 0.01,
         P = np.vstack([P, new])
         if refit_growth and len(P) >= refit_growth * refitted:
             refitted = len(P)
-            before, saved = st.total_loss(), (st.F.copy(), st.G.copy())
-            q2, P2 = refit_linear(st, tree, q, P)
-            _evaluate(st, tree, q2, P2)
-            if st.total_loss() < before:
-                q, P = q2, P2
-            else:
-                st.F, st.G = saved
+            q, P = _refit_if_better(st, tree, q, P)
         if progress is not None:
             progress(len(P), max_functions, {"mean_deviation_rel": float(st.deviation()[:n].mean() / diag),
                                              "normal_deg": float(st.normal_angles().mean()), "rounds": rounds})
-    stats = {"functions": len(P), "parameters": N_BASE + N_PERT * len(P), **quality(q, P, target)}
-    stats["reached"] = bool(stats["mean_deviation"] <= goal and stats["mean_normal_deviation_deg"] <= normal_tolerance)
-    stats["tolerance"] = tolerance
-    stats["normal_tolerance"] = normal_tolerance
-    stats["rounds"] = rounds
-    stats["seconds"] = time.perf_counter() - t0
+    return q, P, rounds
+
+
+def _refit_if_better(st: _State, tree, q: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """All amplitudes refitted jointly (:func:`refit_linear`): the refit base and perturbations if they lower
+    the total loss (``st`` then holds their field), else ``q`` and ``P`` with ``st``'s field as it was."""
+    before, saved = st.total_loss(), (st.F.copy(), st.G.copy())
+    q2, P2 = refit_linear(st, tree, q, P)
+    _evaluate(st, tree, q2, P2)
+    if st.total_loss() < before:
+        return q2, P2
+    st.F, st.G = saved
+    return q, P
+
+
+def _conversion(q: np.ndarray, P: np.ndarray, target: Target, seed: int, stats: dict) -> Conversion:
+    """The :class:`PerturbGenerator` of base ``q`` (10,) and perturbations ``P`` (P, N_PERT), with its file
+    (the conversion's ``stats`` and the target's frame) as a :class:`Conversion`."""
     values = dict(zip(param_names(len(P)), np.concatenate([q, P.reshape(-1)]).tolist()))
     gen = PerturbGenerator(len(P), values)
     vals = gen.spec.defaults()
