@@ -65,30 +65,41 @@ def _largest_coordinate(dtype: str) -> float:
     return float(np.sqrt(np.finfo(dtype).max)) / 16
 
 
+GenArg = Annotated[str, typer.Argument(help="generator name, tree preset, or tree file (.json)")]
+OutputOpt = Annotated[Path, typer.Option("-o", "--output", help="output .npz")]
+PointsOpt = Annotated[Path | None, typer.Option(help="SDF generators only: points (N, 3) as .npy")]
+NPointsOpt = Annotated[int | None, typer.Option("--n-points", help=(
+    "SDF generators only: sample N points in the padded bounds [default: 10000]"), show_default=False)]
+ModeOpt = Annotated[str, typer.Option(help="auto (the generator's own structured Jacobian when it has one, "
+                                           "else forward mode), fwd or rev")]
+LodOpt = Annotated[str | None, typer.Option(help="level of detail (mesh generators)")]
+SubdivideOpt = Annotated[str | None, typer.Option(help="mesh generators: the Jacobian of the mesh subdivided by "
+                                                       "this scheme (loop or midpoint): S J")]
+LevelsOpt = Annotated[int, typer.Option(help=(
+    "with --subdivide: how many levels, 1 to 6 (each about quadruples the rows; the Jacobian must "
+    f"stay within {MAX_ENTRIES:,} entries)"))]
+CheckOpt = Annotated[bool, typer.Option(help="compare with float64 central differences")]
+DtypeOpt = Annotated[str, typer.Option(help="float32 or float64")]
+
+
 def register(app: typer.Typer) -> None:
     @app.command()
     def jacobian(
-        gen: Annotated[str, typer.Argument(help="generator name, tree preset, or tree file (.json)")],
-        output: Annotated[Path, typer.Option("-o", "--output", help="output .npz")],
+        gen: GenArg,
+        output: OutputOpt,
         preset: PresetOpt = None,
         params: ParamsOpt = None,
         set_: SetOpt = None,
         random: RandomOpt = False,
         seed: SeedOpt = 0,
-        points: Annotated[Path | None, typer.Option(help="SDF generators only: points (N, 3) as .npy")] = None,
-        n_points: Annotated[int | None, typer.Option("--n-points", help=(
-            "SDF generators only: sample N points in the padded bounds [default: 10000]"),
-            show_default=False)] = None,
-        mode: Annotated[str, typer.Option(help="auto (the generator's own structured Jacobian when it "
-                                                "has one, else forward mode), fwd or rev")] = "auto",
-        lod: Annotated[str | None, typer.Option(help="level of detail (mesh generators)")] = None,
-        subdivide: Annotated[str | None, typer.Option(help="mesh generators: the Jacobian of the mesh subdivided "
-                                                           "by this scheme (loop or midpoint): S J")] = None,
-        levels: Annotated[int, typer.Option(help=(
-            "with --subdivide: how many levels, 1 to 6 (each about quadruples the rows; the Jacobian must "
-            f"stay within {MAX_ENTRIES:,} entries)"))] = 1,
-        check: Annotated[bool, typer.Option(help="compare with float64 central differences")] = False,
-        dtype: Annotated[str, typer.Option(help="float32 or float64")] = "float64",
+        points: PointsOpt = None,
+        n_points: NPointsOpt = None,
+        mode: ModeOpt = "auto",
+        lod: LodOpt = None,
+        subdivide: SubdivideOpt = None,
+        levels: LevelsOpt = 1,
+        check: CheckOpt = False,
+        dtype: DtypeOpt = "float64",
         device: DeviceOpt = "auto",
         library: LibraryOpt = None,
         json_out: JsonOpt = False,
@@ -97,27 +108,16 @@ def register(app: typer.Typer) -> None:
 
         At most 268,435,456 entries (rows x columns; 2 GiB at float64), checked before any work; --points and
         --n-points apply to SDF generators only."""
-        import numpy as np
         import torch
 
         from ipm.errors import InputError
-        from ipm.files import write_bytes
         from ipm.generators import get_generator
         from ipm.jacobian import MODES, OUTPUTS, check_entries, output_jacobian
 
         check_output(output, (".npz",))
         if mode not in MODES:
             raise UsageError(f"--mode: expected one of {', '.join(MODES)}, got {mode!r}")
-        if dtype not in ("float32", "float64"):
-            raise UsageError(f"--dtype: expected float32 or float64, got {dtype!r}")
-        if points is not None and n_points is not None:
-            raise UsageError("give one of --points and --n-points, got both")
-        if n_points is not None and n_points < 1:
-            raise UsageError(f"--n-points: expected a positive count, got {n_points}")
-        scheme = resolve_subdivision("--subdivide", subdivide, levels) if subdivide is not None else None
-        if scheme is not None and not hasattr(scheme, "operator"):
-            raise UsageError(f"--subdivide: {subdivide} is not a linear scheme (its Jacobian is not S J); "
-                             "expected loop or midpoint")
+        scheme = _check_options(dtype, points, n_points, subdivide, levels)
         dev = resolve_device(device)
         dt = getattr(torch, dtype)
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
@@ -141,13 +141,8 @@ def register(app: typer.Typer) -> None:
         except InputError as e:
             raise UsageError(str(e).replace(f"{g.name} at {len(pts):,} points", f"points file {points}")
                              if pts is not None else str(e)) from None
-        J, names, result, chk = res.J, res.names, dict(res.info), res.check
-        out = {k: (v.cpu().numpy() if torch.is_tensor(v) else v) for k, v in res.arrays.items()}
-        theta = g.split(values, dt, dev)[0]
-        out.update(J=J.detach().cpu().numpy(), theta=theta.cpu().numpy(), names=np.array(names))
-        buf = io.BytesIO()
-        np.savez_compressed(buf, **out)
-        write_bytes(output, buf.getvalue())
+        _write_npz(output, res, g.split(values, dt, dev)[0])
+        result, chk = dict(res.info), res.check
         result["output"] = str(output)
         if check:
             result["max_rel_error"] = chk.max_rel_error
@@ -155,3 +150,33 @@ def register(app: typer.Typer) -> None:
         emit(result, json_out)
         if check and not chk.ok(1e-6):
             raise typer.Exit(1)
+
+
+def _check_options(dtype: str, points: Path | None, n_points: int | None, subdivide: str | None, levels: int):
+    """The options checked before the generator is built; returns ``--subdivide``'s linear scheme or None."""
+    if dtype not in ("float32", "float64"):
+        raise UsageError(f"--dtype: expected float32 or float64, got {dtype!r}")
+    if points is not None and n_points is not None:
+        raise UsageError("give one of --points and --n-points, got both")
+    if n_points is not None and n_points < 1:
+        raise UsageError(f"--n-points: expected a positive count, got {n_points}")
+    scheme = resolve_subdivision("--subdivide", subdivide, levels) if subdivide is not None else None
+    if scheme is not None and not hasattr(scheme, "operator"):
+        raise UsageError(f"--subdivide: {subdivide} is not a linear scheme (its Jacobian is not S J); "
+                         "expected loop or midpoint")
+    return scheme
+
+
+def _write_npz(output: Path, res, theta) -> None:
+    """``res``'s Jacobian, parameter names, extra arrays and the parameter values ``theta`` as one .npz,
+    written atomically."""
+    import numpy as np
+    import torch
+
+    from ipm.files import write_bytes
+
+    out = {k: (v.cpu().numpy() if torch.is_tensor(v) else v) for k, v in res.arrays.items()}
+    out.update(J=res.J.detach().cpu().numpy(), theta=theta.cpu().numpy(), names=np.array(res.names))
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **out)
+    write_bytes(output, buf.getvalue())

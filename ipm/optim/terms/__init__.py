@@ -100,6 +100,19 @@ class Evaluation:
         return self._rasters[i]
 
 
+    def view_mean(self, weight: float, record: str, view_loss) -> torch.Tensor:
+        """``weight`` times the mean over the views of ``view_loss(i, raster) -> (loss, kept)``, summed in view
+        order; each view's ``kept`` (a measurement the evaluator records) appended to ``extras[record]``."""
+        K = len(self.cameras)
+        total = self.mesh.verts.sum() * 0.0
+        self.extras[record] = []
+        for i in range(K):
+            loss, kept = view_loss(i, self.raster(i))
+            total = total + weight / K * loss
+            self.extras[record].append(kept)
+        return total
+
+
 def active_terms(prob) -> list:
     """The terms that apply to ``prob``, in their order."""
     terms = [cls() for _, cls in TERMS.items()]

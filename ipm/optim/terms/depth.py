@@ -25,15 +25,13 @@ class Depth:
         from ipm.render import deferred as R
 
         t, v, f = ev.prob.target, ev.mesh.verts, ev.mesh.faces
-        K = len(ev.cameras)
-        total = v.sum() * 0.0
-        ev.extras["depth_px"] = []
-        for i in range(K):
-            rast = ev.raster(i)
+
+        def view(i: int, rast):
             obj = t.masks[i] > 0.5
             d = R.depth(v, f, ev.view_camera(i), rast)
             tgt = t.depth[i].to(d.dtype)
-            total = total + ev.prob.s.depth_weight / K * C.depth_loss(d, rast.mask, tgt, obj, ev.prob.depth_scales[i])
+            loss = C.depth_loss(d, rast.mask, tgt, obj, ev.prob.depth_scales[i])
             with torch.no_grad():
-                ev.extras["depth_px"].append(C.depth_agreement(d, rast.mask, tgt, obj, ev.prob.depth_scales[i]))
-        return total
+                return loss, C.depth_agreement(d, rast.mask, tgt, obj, ev.prob.depth_scales[i])
+
+        return ev.view_mean(ev.prob.s.depth_weight, "depth_px", view)

@@ -58,18 +58,16 @@ class Parts:
         from ipm.render.camera import detach_camera
 
         t, mesh, still = ev.prob.target, ev.mesh, ev.still_mesh
-        K = len(ev.cameras)
-        total = mesh.verts.sum() * 0.0
         # the mesh's group of each named part (-2: the mesh has no such part now, e.g. no handle)
         index = [mesh.group_names.index(n) if n in mesh.group_names else -2 for n in t.part_names]
-        ev.extras["parts_px"] = []
-        for i in range(K):
-            rast = ev.raster(i)
+
+        def view(i: int, rast):
             soft = soft_parts(still, rast, detach_camera(ev.view_camera(i)), index)  # (P, H, W)
             want = torch.stack([t.parts[i] == k for k in range(len(index))]).to(mesh.verts.dtype)
-            total = total + ev.prob.s.parts_weight / K * C.parts_loss(soft, want)
+            loss = C.parts_loss(soft, want)
             with torch.no_grad():
                 labels = R.part_labels(mesh.groups, rast)
                 hard, w = torch.stack([labels == j for j in index]), want > 0.5
-                ev.extras["parts_px"].append([[int((a & b).sum()), int((a | b).sum())] for a, b in zip(hard, w)])
-        return total
+                return loss, [[int((a & b).sum()), int((a | b).sum())] for a, b in zip(hard, w)]
+
+        return ev.view_mean(ev.prob.s.parts_weight, "parts_px", view)

@@ -25,13 +25,9 @@ class Shading:
         from ipm.render import deferred as R
 
         t, v, f = ev.prob.target, ev.mesh.verts, ev.mesh.faces
-        K = len(ev.cameras)
-        total = v.sum() * 0.0
-        ev.extras["light"] = []
-        for i in range(K):
-            rast = ev.raster(i)
+
+        def view(i: int, rast):
             normal = R.vertex_normal_image(v, f, rast)
-            loss, light = C.shading_loss(normal, t.image[i].to(v.dtype), rast.mask & (t.masks[i] > 0.5))
-            total = total + ev.prob.s.image_weight / K * loss
-            ev.extras["light"].append(light)
-        return total
+            return C.shading_loss(normal, t.image[i].to(v.dtype), rast.mask & (t.masks[i] > 0.5))
+
+        return ev.view_mean(ev.prob.s.image_weight, "light", view)
