@@ -190,7 +190,7 @@ class Extrude(Primitive):
         return self._area() < 0.0
 
     def check(self):
-        """Raises ``InputError`` for a polygon with zero area (all points on a line)."""
+        """Raises ``InputError`` for a polygon of (near) zero signed area."""
         if abs(self._area()) < 1e-12:
             raise InputError(f"extrude: expected a polygon with a non-zero area, got area {self._area() / 2:g}")
 
