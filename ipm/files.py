@@ -230,6 +230,7 @@ class _Outputs:
         self.made: list[Path] = []
 
     def covers(self, path: Path) -> bool:
+        """True if ``path`` is one of the block's outputs (the same file, however spelled)."""
         return any(same_file(path, p) for p in self.paths)
 
     def commit(self) -> None:
@@ -268,6 +269,7 @@ class _Outputs:
         self.pending.clear()
 
     def discard(self) -> None:
+        """Remove the temporary files not yet renamed and the folders made for them; outputs stay as they were."""
         for tmp, _ in self.pending:
             _unlink(tmp)
         self.pending.clear()
@@ -327,12 +329,14 @@ def atomic_path(path: str | Path, suffix: str | None = None) -> Iterator[Path]:
 
 
 def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` to ``path`` atomically (:func:`atomic_path`); returns ``path``."""
     with atomic_path(path) as tmp:
         tmp.write_text(text)
     return Path(path)
 
 
 def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_path`); returns ``path``."""
     with atomic_path(path) as tmp:
         tmp.write_bytes(data)
     return Path(path)

@@ -119,6 +119,7 @@ class JacobianCheck:
     step: float
 
     def ok(self, tol: float = 1e-6) -> bool:
+        """True when the largest relative error is at most ``tol``."""
         return self.max_rel_error <= tol
 
 
@@ -170,6 +171,7 @@ def check_sdf_jacobian(f: SdfFn, theta: torch.Tensor, points: torch.Tensor, J: t
 
 def check_mesh_jacobian(f: MeshFn, theta: torch.Tensor, J: torch.Tensor | None = None,
                         mode: Mode = "auto", step: float = 1e-6) -> JacobianCheck:
+    """Compare the vertex Jacobian ``(3V, n)`` (computed in float64 when not given) with central differences."""
     theta = theta.double()
     if J is None:
         J = mesh_jacobian(f, theta, mode)

@@ -125,6 +125,7 @@ class ShapeScores:
     iou_3d: float
 
     def to_json(self) -> dict:
+        """The scores under their report names (``fscore@0.02``, ``fscore@0.05``, ``chamfer_l1``, ``iou_3d``)."""
         return {"fscore@0.02": self.fscore_002, "fscore@0.05": self.fscore_005,
                 "chamfer_l1": self.chamfer_l1, "iou_3d": self.iou_3d}
 

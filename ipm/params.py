@@ -72,6 +72,7 @@ class Param:
 
     @property
     def continuous(self) -> bool:
+        """True for ``float`` parameters (part of ``theta``); ``int`` and ``bool`` ones are discrete."""
         return self.kind == "float"
 
     def check(self, value: object) -> Value:
@@ -108,6 +109,7 @@ class Param:
         return value
 
     def to_json(self) -> dict:
+        """The parameter as a JSON object; the optional flags (detail, per, adds, anchored, held) only when set."""
         out = {"name": self.name, "kind": self.kind, "default": self.default, "lo": self.lo,
                "hi": self.hi, "doc": self.doc}
         if self.detail:
@@ -159,21 +161,26 @@ class ParamSpec:
 
     @property
     def names(self) -> tuple[str, ...]:
+        """Parameter names in order."""
         return tuple(p.name for p in self.params)
 
     @property
     def continuous(self) -> tuple[Param, ...]:
+        """The ``float`` parameters in order: the coordinates of ``theta``."""
         return tuple(p for p in self.params if p.continuous)
 
     @property
     def discrete(self) -> tuple[Param, ...]:
+        """The ``int`` and ``bool`` parameters in order."""
         return tuple(p for p in self.params if not p.continuous)
 
     @property
     def n_continuous(self) -> int:
+        """Length ``n`` of ``theta``."""
         return len(self.continuous)
 
     def defaults(self) -> dict[str, Value]:
+        """Every parameter's default by name."""
         return {p.name: p.default for p in self.params}
 
     def validate(self, values: Mapping[str, object], *, partial: bool = True) -> dict[str, Value]:
@@ -248,6 +255,7 @@ class ParamSpec:
         return out
 
     def to_json(self) -> list[dict]:
+        """The parameters as a list of JSON objects (:meth:`Param.to_json`), in order."""
         return [p.to_json() for p in self.params]
 
 

@@ -90,6 +90,7 @@ class Registry(Generic[T]):
         return sorted(self._members)
 
     def items(self) -> list[tuple[str, T]]:
+        """``(name, member)`` pairs sorted by name, after importing the registry's packages."""
         self.discover()
         return sorted(self._members.items())
 

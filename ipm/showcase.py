@@ -124,6 +124,9 @@ def fit_photo(out: Path) -> dict:
 
 
 def sdf_showcase(out: Path) -> dict:
+    """The csg, chair, mug and vase trees meshed at resolution 128 (GLB and preview in ``out/sdf``); per tree the
+    face count, watertightness, Jacobian shape at 2000 random points and its largest error against finite differences.
+    """
     from ipm.generators import get_generator
     from ipm.io.export import export_mesh
     from ipm.jacobian import check_sdf_jacobian, sdf_jacobian

@@ -37,13 +37,16 @@ class TriMesh:
 
     @property
     def n_verts(self) -> int:
+        """Number of vertices V."""
         return int(self.verts.shape[0])
 
     @property
     def n_faces(self) -> int:
+        """Number of faces F."""
         return int(self.faces.shape[0])
 
     def detach(self) -> TriMesh:
+        """The same mesh with vertices cut from the autograd graph (faces and groups shared)."""
         return TriMesh(self.verts.detach(), self.faces, self.groups, self.group_names)
 
     def to_trimesh(self):
@@ -58,6 +61,7 @@ class TriMesh:
 
     @staticmethod
     def from_trimesh(mesh, dtype=torch.float64, device=None) -> TriMesh:
+        """A ``TriMesh`` from a ``trimesh.Trimesh`` (vertices as ``dtype``, faces int64; no groups)."""
         return TriMesh(
             torch.as_tensor(mesh.vertices, dtype=dtype, device=device),
             torch.as_tensor(mesh.faces, dtype=torch.int64, device=device),
@@ -151,6 +155,7 @@ class Camera:
 
     @staticmethod
     def from_json(d: dict) -> Camera:
+        """The camera from a cameras.json entry; raises ``InputError`` naming any missing field."""
         need = ("eye", "target", "up", "fov_deg", "width", "height")
         missing = [k for k in need if k not in d]
         if missing:
@@ -160,6 +165,7 @@ class Camera:
                       d.get("cx"), d.get("cy"))
 
     def to(self, dtype=None, device=None) -> Camera:
+        """A copy with its tensors moved to ``dtype`` / ``device`` (image size and principal point kept)."""
         return Camera(self.eye.to(dtype=dtype, device=device), self.target.to(dtype=dtype, device=device),
                       self.up.to(dtype=dtype, device=device), self.fov_deg.to(dtype=dtype, device=device),
                       self.width, self.height, self.cx, self.cy)

@@ -177,6 +177,8 @@ def hidden_markdown(rows: list[dict]) -> str:
 
 
 def markdown(rows: list[dict]) -> str:
+    """The report: one Markdown table per metric (the best per target in bold), the notes on hidden
+    parameters and the failed cells."""
     out = []
     for key, title, higher in METRICS:
         out += _section(title, higher, *table(rows, key))
@@ -190,6 +192,7 @@ def markdown(rows: list[dict]) -> str:
 
 
 def latex(rows: list[dict], metric: str = "heldout_iou") -> str:
+    """One metric's table as a LaTeX ``tabular`` (booktabs rules; the best per target in bold)."""
     higher = next(h for k, _, h in METRICS if k == metric)
     header, body, values = table(rows, metric)
     body = _bold_best([list(b) for b in body], values, higher, lambda s: "\\textbf{" + s + "}")
@@ -200,6 +203,7 @@ def latex(rows: list[dict], metric: str = "heldout_iou") -> str:
 
 
 def csv_text(rows: list[dict]) -> str:
+    """One CSV line per (method, views, target): mean and std of every metric over the seeds, and ``n``."""
     agg = aggregate(rows)
     buf = io.StringIO()
     w = csv.writer(buf)

@@ -40,6 +40,7 @@ class Target:
         return float(np.linalg.norm(self.verts.max(0) - self.verts.min(0)))
 
     def mesh(self) -> TriMesh:
+        """The target as a float64 :class:`TriMesh` in the normalized frame (arrays shared, not copied)."""
         return TriMesh(torch.from_numpy(self.verts), torch.from_numpy(self.faces))
 
 
@@ -171,12 +172,14 @@ def farthest_points(points: np.ndarray, k: int, rng: np.random.Generator) -> np.
 
 
 def check_positive_int(name: str, value, lo: int = 1) -> int:
+    """``int(value)`` if it is an integer >= ``lo`` (bools refused), else ``InputError`` naming ``name``."""
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < lo:
         raise InputError(f"{name}: expected an integer >= {lo}, got {value!r}")
     return int(value)
 
 
 def check_positive(name: str, value) -> float:
+    """``float(value)`` if it is a finite number > 0, else ``InputError`` naming ``name``."""
     try:
         v = float(value)
     except (TypeError, ValueError):

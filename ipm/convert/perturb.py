@@ -245,6 +245,7 @@ class _State:
 
     @property
     def n_surf(self) -> int:
+        """Rows of ``X`` with surface targets: the ``S`` on-surface samples and their two offsets."""
         return 3 * self.S
 
     def residual(self, rows: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -255,6 +256,7 @@ class _State:
         return r
 
     def total_loss(self) -> float:
+        """The whole loss: squared residuals over every row plus ``wg`` times ``|G - normals|^2``."""
         r = self.residual(np.arange(len(self.X)), self.F)
         g = self.G - self.normals
         return float((r * r).sum() + self.wg * (g * g).sum())

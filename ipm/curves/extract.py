@@ -346,17 +346,20 @@ class _Nodes:
         self.pos: list[np.ndarray] = []
 
     def add(self, xy: np.ndarray) -> int:
+        """A new node at ``xy``, its own set; returns its id."""
         self.parent.append(len(self.parent))
         self.pos.append(np.asarray(xy, float))
         return len(self.parent) - 1
 
     def find(self, a: int) -> int:
+        """The set's root of node ``a`` (with path halving)."""
         while self.parent[a] != a:
             self.parent[a] = self.parent[self.parent[a]]
             a = self.parent[a]
         return a
 
     def union(self, a: int, b: int) -> None:
+        """Join the sets of ``a`` and ``b`` (``a``'s root stays the root)."""
         a, b = self.find(a), self.find(b)
         if a != b:
             self.parent[b] = a

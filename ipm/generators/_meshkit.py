@@ -136,6 +136,7 @@ def ring_dirs(segments: int) -> np.ndarray:
 
 
 def unit(axis: int, n: int = 3) -> np.ndarray:
+    """The ``axis``-th unit vector of length ``n``."""
     return np.eye(n)[axis]
 
 

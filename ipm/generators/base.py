@@ -181,6 +181,7 @@ class ValuesField(ABC):
         return self.spec.to_vector(self._values, dtype, device)
 
     def values(self) -> dict:
+        """A copy of the stored parameter values by name."""
         return dict(self._values)
 
     @abstractmethod
@@ -200,9 +201,11 @@ class ValuesField(ABC):
     __call__ = sdf
 
     def with_values(self, values: Mapping[str, object]):
+        """The same kind of field with some stored values replaced (validated by the generator's spec)."""
         return type(self)(self.gen, {**self._values, **values})
 
     def with_theta(self, theta: torch.Tensor):
+        """The same kind of field with the continuous values from ``theta: (n,)``; ``InputError`` on a wrong length."""
         vals = theta.detach().cpu().double().tolist()
         if len(vals) != self.spec.n_continuous:
             raise InputError(f"expected theta of length {self.spec.n_continuous}, got {len(vals)}")

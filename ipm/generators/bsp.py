@@ -385,6 +385,7 @@ class BspGenerator(Generator):
 
     # -- files ---------------------------------------------------------------------------------
     def settings(self) -> dict:
+        """The structural settings a bsp file records: plane and convex counts, extent, relaxation, temperature."""
         return {"planes": self.n_planes, "convexes": self.n_convexes, "extent": self.extent,
                 "relax": self.relax, "temperature": self.temperature}
 
@@ -398,6 +399,7 @@ class BspGenerator(Generator):
         return out
 
     def metadata(self, values: Mapping[str, Value]) -> dict:
+        """The whole file document (:meth:`to_json`), so exports can be loaded back as a generator."""
         return self.to_json(values)
 
     @staticmethod

@@ -288,6 +288,7 @@ class PerturbGenerator(Generator):
                 "params": dict(self.spec.validate(values or {})), **extra}
 
     def metadata(self, values: Mapping[str, Value]) -> dict:
+        """The whole file document (:meth:`to_json`), so exports can be loaded back as a generator."""
         return self.to_json(values)
 
     @staticmethod

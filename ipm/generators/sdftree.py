@@ -46,10 +46,12 @@ class SdfTreeGenerator(Generator):
 
     @staticmethod
     def from_file(path: str | Path) -> SdfTreeGenerator:
+        """A generator over the SDF tree in a file (``InputError`` naming the file if it cannot be read)."""
         return SdfTreeGenerator(load_tree(path), "sdftree", str(path))
 
     @staticmethod
     def from_preset(name: str) -> SdfTreeGenerator:
+        """A generator over a shipped tree (:func:`tree_presets`), named after it."""
         path = tree_presets()[name]
         return SdfTreeGenerator(tree_from_json(json.loads(path.read_text())), name, f"preset {name}")
 
@@ -63,6 +65,7 @@ class SdfTreeGenerator(Generator):
         return self._cache[key]
 
     def sdf(self, theta: torch.Tensor, points: torch.Tensor, discrete: Mapping[str, int] | None = None):
+        """Distances ``(...)`` at ``points: (..., 3)`` of the tree with these discrete values, negative inside."""
         return self.tree_for(discrete or {}).sdf(theta, points)
 
     def check_meshing(self, values: Mapping[str, Value], resolution: int) -> None:
@@ -70,11 +73,13 @@ class SdfTreeGenerator(Generator):
         check_field_meshing(self.tree, values, resolution)
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
+        """Marching cubes over the tree's bounds, ``resolution`` (default 128) samples along the longest side."""
         tree = self.tree.with_values(values)
         lo, hi = tree.bounds()
         return mesh_sdf(lambda p: tree.sdf(None, p), lo, hi, resolution or 128)
 
     def metadata(self, values: Mapping[str, Value]) -> dict:
+        """Adds the tree itself, with ``values`` filled in, as nested JSON (``"tree"``)."""
         from ipm.sdf.tree import tree_to_json
 
         return {"generator": self.name, "params": dict(values),

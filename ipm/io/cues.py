@@ -30,14 +30,17 @@ MAX_PARTS = 255               # labels 1..255 in an 8-bit PNG
 
 
 def depth_name(i: int, suffix: str = ".npy") -> str:
+    """File name of view ``i``'s depth map: ``depth_###.npy`` (scene units) or, with ``suffix=".png"``, millimetres."""
     return f"depth_{i:03d}{suffix}"
 
 
 def normal_name(i: int) -> str:
+    """File name of view ``i``'s normal map, ``normal_###.png``."""
     return f"normal_{i:03d}.png"
 
 
 def part_name(i: int) -> str:
+    """File name of view ``i``'s part labels, ``part_###.png``."""
     return f"part_{i:03d}.png"
 
 

@@ -49,6 +49,7 @@ def _kind(path: Path) -> str:
 
 
 def sidecar_path(path: str | Path) -> Path:
+    """The ``.params.json`` file written beside an exported mesh (``chair.glb`` -> ``chair.params.json``)."""
     path = Path(path)
     return path.with_name(path.stem + ".params.json")
 

@@ -27,6 +27,7 @@ VIEW_RE = re.compile(r"^view_(\d{3,})\.png$")
 
 
 def view_name(i: int) -> str:
+    """File name of view ``i``'s mask in a mask-set folder, ``view_###.png`` (three digits at least)."""
     return f"view_{i:03d}.png"
 
 

@@ -276,6 +276,7 @@ class Trajectory:
             raise refused(self.path, e) from None
 
     def close(self) -> None:
+        """Close the log file; an OS error here is ignored (a failed write was reported already)."""
         with contextlib.suppress(OSError):  # a full disk: the refusal was reported by the write
             self._f.close()
 

@@ -24,6 +24,8 @@ class SurfaceSampler:
     @staticmethod
     def draw(verts: torch.Tensor, faces: torch.Tensor, n: int, generator: torch.Generator | None = None
              ) -> SurfaceSampler:
+        """``n`` samples drawn area-weighted on the mesh as it is now, uniform within each face; ``InputError``
+        for a mesh of zero area."""
         v = verts.detach()
         tri = v[faces]
         area = torch.linalg.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0], dim=-1).norm(dim=-1)

@@ -30,6 +30,7 @@ class Adam:
         self.t = 0
 
     def zero_grad(self) -> None:
+        """Drop the parameters' gradients (set to None, as ``torch.optim`` does by default)."""
         for p in self.params:
             p.grad = None
 

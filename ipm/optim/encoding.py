@@ -70,6 +70,7 @@ class Layout:
 
     @property
     def pose(self) -> slice:
+        """Where the 5 pose coordinates sit in ``x``: right after the ``n`` generator coordinates."""
         return slice(self.n, self.n + POSE_SIZE)
 
 
@@ -107,14 +108,17 @@ def denormalize(layout: Layout, u: torch.Tensor, theta0: torch.Tensor) -> torch.
 # Written with plain arithmetic so that they take floats and tensors alike.
 
 def encode_translation(t):
+    """A translation coordinate in normalized units, ``[-T_RANGE, T_RANGE]`` -> [0, 1] (not clamped)."""
     return (t / T_RANGE + 1) / 2
 
 
 def encode_yaw(yaw_deg):
+    """Yaw in degrees, ``[-YAW_RANGE, YAW_RANGE]`` -> [0, 1] (not clamped)."""
     return (yaw_deg / YAW_RANGE + 1) / 2
 
 
 def encode_log2_scale(log2_scale):
+    """``log2`` of the uniform scale, ``[-LOG2S_RANGE, LOG2S_RANGE]`` -> [0, 1] (not clamped)."""
     return (log2_scale / LOG2S_RANGE + 1) / 2
 
 

@@ -119,6 +119,7 @@ class Evaluator:
 
     @property
     def remaining(self) -> int:
+        """Evaluations left before the current cap (the budget, or the enclosing phase's stop)."""
         return self.cap - self.count
 
     @contextmanager
@@ -141,6 +142,7 @@ class Evaluator:
 
     @property
     def replaying(self) -> bool:
+        """True while the evaluations are taken from a resumed run's records instead of computed."""
         return self.count < len(self.replay)
 
     def __call__(self, x: torch.Tensor, discrete: dict, *, grad: bool = True) -> tuple[float, torch.Tensor | None]:

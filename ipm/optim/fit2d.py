@@ -53,6 +53,8 @@ class Fit2DSettings:
     sigma: Annotated[float, Meta(gt=0, le=10, extra={"noun": "a blur in pixels"})] = 0.7
 
     def check(self) -> Fit2DSettings:
+        """The settings themselves if every field is in range and ``loss`` parses; else ``InputError`` naming
+        the field."""
         import msgspec
 
         from ipm.settings_check import first_infinite
@@ -86,6 +88,7 @@ class Fit2DResult:
     mask: np.ndarray
 
     def to_json(self) -> dict:
+        """The fit's summary as JSON: mode, pose, IoU, loss, steps, seconds and the tree's values (``params``)."""
         return {"mode": self.mode, "pose": self.pose, "iou": round(self.iou, 6), "loss": self.loss,
                 "steps": self.steps, "seconds": round(self.seconds, 3),
                 "params": {k: v for k, v in self.tree.values().items()}}

@@ -135,6 +135,7 @@ class FitSettings:
             raise InputError(f"transport dustbin: applies to a loss with a sinkhorn term, got loss {self.loss!r}")
 
     def to_json(self) -> dict:
+        """The settings as plain JSON (nested settings as objects)."""
         return asdict(self)
 
 

@@ -99,6 +99,7 @@ class MeshShape:
         self._target: torch.Tensor | None = None
 
     def vertices(self, theta, discrete):
+        """The generator's mesh vertices ``(V, 3)`` float64, detached, before subdivision."""
         return self.gen.mesh(theta, discrete, self.s.lod).verts.detach().double()
 
     def canonical(self, theta: torch.Tensor, discrete: Mapping[str, int]) -> TriMesh:
@@ -115,10 +116,12 @@ class MeshShape:
         return TriMesh(v, torch.as_tensor(f, device=m.faces.device), groups, m.group_names)
 
     def world_mesh(self, theta, discrete, pose):
+        """:meth:`canonical` moved to the world by ``pose`` (differentiable in ``theta`` and the pose)."""
         m = self.canonical(theta, discrete)
         return TriMesh(pose.to_world(m.verts.to(self.dtype)), m.faces, m.groups, m.group_names)
 
     def silhouettes(self, theta, discrete, pose, cams, sigma_factor, mesh=None):
+        """Soft mesh silhouettes ``(K, H, W)``; ``sigma`` is the settings' (default 1 px^2) times ``sigma_factor``."""
         from ipm.render.soft import soft_silhouette
 
         m = self.world_mesh(theta, discrete, pose) if mesh is None else mesh
@@ -126,6 +129,7 @@ class MeshShape:
         return torch.stack([soft_silhouette(m.verts, m.faces, c.to(self.dtype), sigma=sig) for c in cams])
 
     def target_loss(self, theta, discrete, pose, target):
+        """Symmetric Chamfer between points drawn on the posed mesh (fixed samples per topology) and on the target."""
         m = self.world_mesh(theta, discrete, pose)
         key = (tuple(sorted(discrete.items())), m.n_faces)
         if key not in self._samplers:
@@ -148,9 +152,11 @@ class SdfShape:
         self._target: tuple | None = None
 
     def vertices(self, theta, discrete):
+        """Vertices ``(V, 3)`` float64 of a coarse marching-cubes mesh (48 samples along the longest side)."""
         return self.gen.to_mesh(self.gen.spec.from_vector(theta, discrete), resolution=48).verts.double()
 
     def world_mesh(self, theta, discrete, pose):
+        """Marching cubes at the settings' resolution, posed; not differentiable (``theta`` is detached)."""
         values = self.gen.spec.from_vector(theta.detach().double(), discrete)
         m = self.gen.to_mesh(values, resolution=self.s.resolution)
         return TriMesh(pose.to_world(m.verts.to(self.dtype)), m.faces, m.groups, m.group_names)
@@ -175,6 +181,7 @@ class SdfShape:
         return f, c - r, c + r
 
     def silhouettes(self, theta, discrete, pose, cams, sigma_factor, mesh=None):
+        """Sphere-traced soft silhouettes ``(K, H, W)`` of the posed field (``mesh`` is ignored)."""
         from ipm.render.sdf_silhouette import default_sigma, sdf_silhouette
 
         f, lo, hi = self.field(theta, discrete, pose)
@@ -183,6 +190,7 @@ class SdfShape:
                             for c in cams])
 
     def target_loss(self, theta, discrete, pose, target):
+        """Mean ``|f|`` at the target's surface points plus 0.1 x the occupancy loss at points in ``[-1.1, 1.1]^3``."""
         if self._target is None:
             from ipm.metrics import inside
 

@@ -48,6 +48,7 @@ class YawSymmetry:
         return [360.0 * k / self.order for k in range(self.order)]
 
     def to_json(self) -> dict:
+        """``{"kind", "order", "axis_xz"}``, the axis rounded to 6 decimals."""
         return {"kind": self.kind, "order": self.order, "axis_xz": [round(v, 6) for v in self.axis]}
 
 

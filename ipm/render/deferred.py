@@ -61,6 +61,7 @@ class Raster:
 
     @property
     def shape(self) -> tuple[int, int]:
+        """Image size ``(H, W)``."""
         return int(self.face.shape[0]), int(self.face.shape[1])
 
 

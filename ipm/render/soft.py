@@ -189,6 +189,8 @@ class _SoftLogSum(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, tri_xy, groups, width, height, sigma, chunk, backend):
+        """``S (H, W + K)``, the span groups in chunks of about ``chunk`` pixel-triangle pairs; keeps what
+        the backward needs when ``tri_xy`` requires grad."""
         fwd, _ = _kernels(backend)
         need_grad = bool(ctx.needs_input_grad[0])
         data = _edge_data(tri_xy)
@@ -218,6 +220,7 @@ class _SoftLogSum(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, gS):
+        """``dL/d tri_xy (F, 3, 2)`` from the kept pairs: each edge's sums go to its start and end vertices."""
         _, bwd = _kernels(ctx.backend)
         gS = gS.contiguous().view(-1)
         grad = torch.zeros(ctx.n_tri, 3, 2, dtype=gS.dtype, device=gS.device)
@@ -238,6 +241,8 @@ class _SoftNative(torch.autograd.Function):
 
     @staticmethod
     def forward(ctx, verts, R, eye, fpx, faces, cx, cy, near, width, height, sigma, radius):
+        """The silhouette ``(H, W)``; ``InputError`` for face indices out of range, ``MemoryError`` when the
+        kernel runs out of memory."""
         dt, n_verts, n_faces = verts.dtype, verts.shape[0], faces.shape[0]
         v = verts.detach()
         cam = torch.cat([R.detach().reshape(9), eye.detach().reshape(3), fpx.detach().reshape(1),
@@ -261,6 +266,7 @@ class _SoftNative(torch.autograd.Function):
     @staticmethod
     @torch.autograd.function.once_differentiable
     def backward(ctx, gsil):
+        """Gradients for ``verts``, ``R``, ``eye`` and ``fpx`` by the C kernel (pairs recomputed); none for the rest."""
         v, cam, faces, tri, rows, S = ctx.saved
         width, height, radius, sigma = ctx.args
         dt, n_verts, n_faces = v.dtype, v.shape[0], faces.shape[0]

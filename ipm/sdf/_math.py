@@ -56,10 +56,12 @@ def length2(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
 
 
 def length3(x: torch.Tensor, y: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+    """Norm of the 3-vector ``(x, y, z)`` given as three tensors, with a finite gradient at 0 (:func:`safe_sqrt`)."""
     return safe_sqrt(torch.addcmul(torch.addcmul(x * x, y, y), z, z))
 
 
 def relu(x: torch.Tensor) -> torch.Tensor:
+    """``max(x, 0)``."""
     return torch.clamp(x, min=0.0)
 
 
@@ -90,6 +92,7 @@ def like(x: torch.Tensor, value: float) -> torch.Tensor:
 
 
 def deg2rad(a):
+    """Degrees to radians, for a tensor (constant in its dtype, see :func:`like`) or a Python number."""
     return a * like(a, math.pi / 180.0) if torch.is_tensor(a) else a * (math.pi / 180.0)
 
 

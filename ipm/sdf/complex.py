@@ -200,10 +200,12 @@ class MacroNode(Node):
         return env
 
     def eval(self, p, th, kids):
+        """The template evaluated with its parameters computed from this node's values (``defs``, then ``exprs``)."""
         env = self._inner_values(th, p)
         return _run(self.template, p, iter(self.exprs), env, kids)
 
     def bbox(self, v, kids):
+        """The template's bounds with the parameters computed from this node's values."""
         env = self._inner_values(v, None)
         return _template_bbox(self.template, iter(self.exprs), env, kids)
 

@@ -36,6 +36,8 @@ def grid_shape(lo: np.ndarray, hi: np.ndarray, resolution: int, pad: int = 2):
 
 
 def check_resolution(resolution: int, lo: np.ndarray, hi: np.ndarray) -> None:
+    """``InputError`` unless ``resolution`` is an int >= 8 whose grid over ``[lo, hi]`` has at most
+    :data:`MAX_SAMPLES` samples (the message names the largest resolution that fits)."""
     if not isinstance(resolution, (int, np.integer)) or resolution < 8:
         raise InputError(f"resolution: expected an integer >= 8, got {resolution}")
     _, _, shape = grid_shape(lo, hi, resolution)

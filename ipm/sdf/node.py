@@ -50,6 +50,7 @@ class NodeRegistry(Registry):
         self._running = False
 
     def discover(self) -> None:
+        """Imports the packages, then, the first time any package is new, runs the ``after`` hooks (not re-entrant)."""
         fresh = any(p not in self._discovered for p in self.packages)
         super().discover()
         if fresh and not self._running:
@@ -98,10 +99,12 @@ class Node(TreeNode):
 
     @classmethod
     def derived_fields(cls, kids):
+        """``_dim``: the type's ``dim``, or for CSG nodes (``dim`` 0) the first child's (3 without children)."""
         return {"_dim": cls.dim or (kids[0].out_dim if kids else 3)}
 
     @classmethod
     def check_child_kinds(cls, kids, label):
+        """``InputError`` unless every child has the required dimension (CSG: all children the same dimension)."""
         want = cls.child_dim or cls.dim
         if not kids:
             return
@@ -165,12 +168,15 @@ class SlotNode(Node):
     type_name: ClassVar[str] = "$slot"
 
     def eval(self, p, th, kids):
+        """Always raises ``RuntimeError``: the tree compiler replaces slots by the macro's children."""
         raise RuntimeError("macro slots are evaluated by the tree compiler")
 
     def bbox(self, v, kids):
+        """Always raises ``InputError``: a slot has no bounds of its own."""
         raise InputError("expected a node with bounds, got a macro slot")
 
     def to_dict(self) -> dict:
+        """``{"slot": i}``: the slot's JSON form in a macro definition."""
         return {"slot": self.size}
 
 

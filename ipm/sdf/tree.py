@@ -61,6 +61,7 @@ class Tree:
         return torch.tensor([float(p.default) for p in self.spec.continuous], dtype=dtype, device=device)
 
     def values(self) -> dict:
+        """Every parameter's stored value by name (the tree's spec keeps them as its defaults)."""
         return self.spec.defaults()
 
     def sdf(self, theta: torch.Tensor | None, points: torch.Tensor) -> torch.Tensor:

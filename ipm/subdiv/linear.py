@@ -41,6 +41,7 @@ def clean(V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def check_levels(levels: int) -> int:
+    """``levels`` if it is an int from 1 to :data:`MAX_LEVELS`, else ``InputError``."""
     if isinstance(levels, bool) or not isinstance(levels, int) or not 1 <= levels <= MAX_LEVELS:
         raise InputError(f"levels: expected an integer from 1 to {MAX_LEVELS}, got {levels!r}")
     return levels
@@ -119,6 +120,7 @@ class LinearScheme:
         return self._cache[key]
 
     def subdivide(self, verts: torch.Tensor, faces: np.ndarray, levels: int) -> tuple[torch.Tensor, np.ndarray]:
+        """One cached sparse operator for all ``levels`` applied to ``verts`` (differentiable), and the final faces."""
         op, F = self.operator(faces, verts.shape[0], levels)
         return op(verts), F
 

@@ -108,6 +108,7 @@ class NeuralSubdivision(nn.Module):
 
     def forward(self, verts: torch.Tensor, faces: np.ndarray, levels: int
                 ) -> tuple[list[torch.Tensor], np.ndarray]:
+        """The meshes after each of ``levels`` steps (in ``verts``' dtype) and the last level's faces."""
         V = verts.to(next(self.parameters()).dtype)
         fl = flaps(faces, V.shape[0])
         abcd = torch.as_tensor(fl.abcd, device=V.device)

@@ -33,6 +33,7 @@ class _Pair:
         self.S, self.St = S, St
 
     def transposed(self) -> _Pair:
+        """The pair for ``S^T``: what the backward pass applies."""
         return _Pair(self.St, self.S)
 
 
@@ -42,22 +43,27 @@ class _SparseApply(torch.autograd.Function):
 
     @staticmethod
     def forward(pair: _Pair, X: torch.Tensor) -> torch.Tensor:
+        """``S @ X`` (the pair carries no gradient)."""
         return pair.S @ X
 
     @staticmethod
     def setup_context(ctx, inputs, output):
+        """Keeps the pair for the backward and forward-mode passes."""
         ctx.pair = inputs[0]
 
     @staticmethod
     def backward(ctx, g: torch.Tensor):
+        """``S^T @ g`` for ``X``, nothing for the pair."""
         return None, _SparseApply.apply(ctx.pair.transposed(), g)
 
     @staticmethod
     def jvp(ctx, _dpair, dX: torch.Tensor) -> torch.Tensor:
+        """Forward mode: ``S @ dX``."""
         return _SparseApply.apply(ctx.pair, dX)
 
     @staticmethod
     def vmap(info, in_dims, pair: _Pair, X: torch.Tensor):
+        """Batching rule: the batch dimension of ``X`` becomes trailing columns, so a vmap is one sparse product."""
         d = in_dims[1]
         if d is None:
             return _SparseApply.apply(pair, X), None
@@ -77,6 +83,7 @@ class SparseOperator:
         self._cache: dict[tuple, tuple[torch.Tensor, torch.Tensor]] = {}
 
     def tensors(self, dtype: torch.dtype, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+        """``(S, S^T)`` as torch CSR tensors of this dtype and device (converted on first use, then cached)."""
         key = (dtype, str(device))
         if key not in self._cache:
             self._cache[key] = (to_torch(self.scipy, dtype, device), to_torch(self.scipy.T, dtype, device))

@@ -34,6 +34,7 @@ class TrainSettings:
     map: str = "closest"      # how a real pair's levels are mapped back (ipm.subdiv.mapped.METHODS)
 
     def check(self) -> None:
+        """Raises ``InputError`` naming the first setting out of range, an unknown ``map``, or no pairs at all."""
         from ipm.subdiv.mapped import METHODS
 
         for name, lo, hi in (("pairs", 1, 100_000), ("steps", 1, 10_000_000), ("levels", 1, 3),
@@ -102,10 +103,13 @@ def real_pairs(paths: tuple[str, ...], levels: int, method: str) -> list[Pair]:
 
 
 def training_pairs(s: TrainSettings) -> list[Pair]:
+    """The settings' procedural dish pairs (if ``procedural``) followed by the real meshes' pairs."""
     return (make_pairs(s.pairs, s.levels, s.seed) if s.procedural else []) + real_pairs(s.real, s.levels, s.map)
 
 
 def pair_loss(net: NeuralSubdivision, pair: Pair) -> torch.Tensor:
+    """Mean squared vertex error summed over the levels, divided by the coarse mesh's mean squared edge
+    length (so the loss does not depend on the mesh's scale)."""
     out, _ = net(pair.verts, pair.faces, len(pair.levels))
     e = pair.verts[pair.faces[:, [0, 1]]]
     scale = ((e[:, 0] - e[:, 1]) ** 2).sum(-1).mean()
@@ -164,6 +168,7 @@ def _train(s: TrainSettings, checkpoint, every: int, resume: bool, progress) -> 
 
 
 def json_settings(extra: dict) -> dict:
+    """The training settings stored in a checkpoint's extra arrays; ``InputError`` when there are none."""
     raw = extra.get("settings")
     if raw is None:
         raise InputError("resume: the file holds weights without training settings (not a checkpoint)")
@@ -172,6 +177,7 @@ def json_settings(extra: dict) -> dict:
 
 def save_checkpoint(net: NeuralSubdivision, opt: torch.optim.Adam, s: TrainSettings, step: int,
                     path: str | Path) -> Path:
+    """Write the weights, ``step``, the settings as JSON and Adam's moments to ``path`` (``.npz``, atomically)."""
     extra: dict = {"step": np.array(step), "settings": np.array(json.dumps(asdict(s)))}
     names = dict(net.named_parameters())
     for k, p in names.items():

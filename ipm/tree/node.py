@@ -57,6 +57,7 @@ class TreeNode:
         return ()
 
     def param_defs(self) -> tuple[Param, ...]:
+        """This instance's parameter declarations (its type's, at its size)."""
         return type(self).param_defs_for(self.size)
 
     @classmethod

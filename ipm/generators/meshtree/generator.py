@@ -54,10 +54,12 @@ class MeshTreeGenerator(Generator):
 
     @staticmethod
     def from_file(path: str | Path) -> MeshTreeGenerator:
+        """A generator over the mesh tree in a file (``InputError`` with a one-line reason if it cannot be read)."""
         return MeshTreeGenerator(load_mesh_tree(path), "meshtree", str(path))
 
     @staticmethod
     def from_preset(name: str) -> MeshTreeGenerator:
+        """A generator over a shipped mesh tree, with the file's named presets; ``InputError`` lists the known names."""
         data = load_preset(name)
         return MeshTreeGenerator(mesh_tree_from_json(data), "meshtree", f"preset {name}", data.get("presets"))
 
@@ -75,6 +77,7 @@ class MeshTreeGenerator(Generator):
         return self.tree.mesh(self.spec.to_vector(self.spec.validate(values)), lod).detach()
 
     def metadata(self, values: Mapping[str, Value]) -> dict:
+        """Adds the tree itself, with ``values`` filled in, as nested JSON (``"tree"``)."""
         return {"generator": self.name, "params": dict(values),
                 "tree": mesh_tree_to_json(self.tree.with_values(values))["tree"]}
 

@@ -63,6 +63,7 @@ class Primitive(MeshNode, ABC):
         """Faces ``(F, 3) int64`` NumPy array (outward, counter-clockwise seen from outside)."""
 
     def n_verts(self, lod: MeshLod) -> int:
+        """Number of vertices at this level of detail (default: from the faces; subclasses override it cheaper)."""
         return int(self.faces(lod).max()) + 1
 
     def jacobian(self, th: torch.Tensor, lod: MeshLod) -> torch.Tensor:

@@ -71,6 +71,7 @@ class MeshTree:
 
     @property
     def n_params(self) -> int:
+        """Number of parameters of the whole tree (all nodes' parameters, flat)."""
         return len(self.spec)
 
     def theta(self, dtype=torch.float64, device=None) -> torch.Tensor:

@@ -39,9 +39,11 @@ class Budget:
 
     @property
     def left(self) -> int:
+        """Evaluations still allowed (0 once the limit is reached)."""
         return max(self.limit - self.used, 0)
 
     def take(self) -> bool:
+        """Count one evaluation and return True, or return False without counting once the limit is reached."""
         if self.used >= self.limit:
             return False
         self.used += 1
@@ -62,14 +64,17 @@ class Region:
 
     @property
     def center(self) -> np.ndarray:
+        """Center ``(3,)`` of the region's bounding box."""
         return 0.5 * (self.lo + self.hi)
 
     @property
     def extent(self) -> np.ndarray:
+        """Side lengths ``(3,)`` of the region's bounding box."""
         return self.hi - self.lo
 
     @property
     def center_core(self) -> np.ndarray:
+        """Center ``(3,)`` of the region's core box."""
         return 0.5 * (self.core_lo + self.core_hi)
 
 
@@ -112,6 +117,7 @@ def core_box(region: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def compile_tree(d: dict):
+    """The SDF tree of a nested JSON node ``d`` (``InputError`` if it is not a valid tree)."""
     from ipm.sdf.tree import tree_from_json
 
     return tree_from_json({"tree": d})
@@ -182,6 +188,7 @@ def occupancy(d: dict, samples: Samples) -> torch.Tensor:
 
 
 def iou(occ: torch.Tensor, samples: Samples) -> float:
+    """IoU of the occupancy ``occ`` with the target's on the sample grid (1.0 when both are empty)."""
     t = samples.grid_inside
     union = int((occ | t).sum())
     return float(int((occ & t).sum()) / union) if union else 1.0

@@ -67,6 +67,7 @@ def part_box(node: dict) -> tuple[np.ndarray, np.ndarray] | None:
 
 
 def combine(op: str, a: dict, b: dict) -> dict:
+    """A new ``op`` node (union, subtraction, ...) over ``a`` and ``b`` (not copied)."""
     return {"node": op, "children": [a, b]}
 
 
@@ -78,6 +79,7 @@ def walk(d: dict, path: Path = ()) -> Iterator[tuple[Path, dict]]:
 
 
 def get(d: dict, path: Path) -> dict:
+    """The node at ``path`` (child indices from the root)."""
     for i in path:
         d = d["children"][i]
     return d

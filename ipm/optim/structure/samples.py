@@ -56,6 +56,7 @@ class Samples:
         return (self.hi - self.lo) / np.asarray(self.shape)
 
     def to(self, device=None, dtype=torch.float32) -> Samples:
+        """The samples with their point tensors in ``dtype`` on ``device``; the bool labels only move."""
         def f(t):
             return None if t is None else t.to(device=device, dtype=dtype)
 

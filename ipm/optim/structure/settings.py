@@ -64,12 +64,14 @@ class StructureSettings:
                              f"{self.polish}")
 
     def to_json(self) -> dict:
+        """The settings as a JSON object (``kinds`` and ``edits`` as lists)."""
         d = asdict(self)
         d["kinds"], d["edits"] = list(self.kinds), list(self.edits)
         return d
 
     @classmethod
     def from_json(cls, data: dict) -> StructureSettings:
+        """Settings from :meth:`to_json`'s object, checked; ``InputError`` for an unknown key or a bad value."""
         if not isinstance(data, dict):
             raise InputError(f"structure settings: expected an object, got {type(data).__name__}")
         known = {f.name for f in fields(cls)}

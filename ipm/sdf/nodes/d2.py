@@ -74,11 +74,14 @@ class Polygon(Primitive):
 
     @classmethod
     def point_params(cls, i, k):
+        """``x{i}``, ``y{i}``: defaults on a circle of radius 0.5 (a regular k-gon), counter-clockwise."""
         a = 2.0 * math.pi * i / k
         return P(f"x{i}", round(0.5 * math.cos(a), 6), *POS), P(f"y{i}", round(0.5 * math.sin(a), 6), *POS)
 
     def eval(self, p, th, kids):
+        """Exact distance to the polygon (Quilez's sdPolygon), negative inside."""
         return polygon_sdf(p[..., 0], p[..., 1], list(zip(th[0::2], th[1::2])))
 
     def bbox(self, v, kids):
+        """The box of the polygon's points."""
         return points_box(v[0::2], v[1::2])

@@ -179,9 +179,11 @@ class Revolution(Primitive):
 
     @classmethod
     def point_params(cls, i, k):
+        """``r{i}``: radius at height ``i / (k - 1) * height``, default 0.4 (a cylinder)."""
         return (P(f"r{i}", 0.4, 0.0, 20.0),)
 
     def eval(self, p, th, kids):
+        """sdPolygon of the profile and its mirror image at ``(|p.xz|, p.y)``."""
         h, *radii = th
         k = len(radii)
         ys = [h * (i / (k - 1)) for i in range(k)]
@@ -190,5 +192,6 @@ class Revolution(Primitive):
         return polygon_sdf(length2(p[..., 0], p[..., 2]), p[..., 1], right + left)
 
     def bbox(self, v, kids):
+        """``[-r, 0, -r] .. [r, height, r]`` with ``r`` the largest radius."""
         r = max(v[1:])
         return np.array([-r, 0.0, -r]), np.array([r, v[0], r])

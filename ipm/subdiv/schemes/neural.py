@@ -32,6 +32,7 @@ class NeuralScheme:
         return NeuralScheme(weights=Path(path))
 
     def network(self):
+        """The network of the weights file, loaded on first use (``InputError`` if the file is not a weights file)."""
         if self._net is None:
             from ipm.subdiv.neural import load_weights
 
@@ -39,6 +40,7 @@ class NeuralScheme:
         return self._net
 
     def subdivide(self, verts: torch.Tensor, faces: np.ndarray, levels: int) -> tuple[torch.Tensor, np.ndarray]:
+        """The network's mesh after ``levels`` steps; a mesh's faces are checked the first time only."""
         check_levels(levels)
         F = np.ascontiguousarray(faces)
         key = (verts.shape[0], levels, F.shape, F.dtype.str, F.tobytes())

@@ -33,13 +33,16 @@ class Box(Primitive):
     params = (P("size_x", 1.0), P("size_y", 1.0), P("size_z", 1.0))
 
     def verts(self, th, lod):
+        """The 8 corners ``(8, 3)`` of the box ``[-size / 2, size / 2]`` (linear in ``th``)."""
         h = smul(th, 0.5)[None]
         return mk.box_verts(-h, h)
 
     def faces(self, lod):
+        """The box's 12 triangles (the same at every level of detail)."""
         return mk.repeat_faces_np(None, 8, 1, 2, 4)
 
     def n_verts(self, lod):
+        """Always 8, whatever the level of detail."""
         return 8
 
 
@@ -54,14 +57,17 @@ class Frustum(Primitive):
         """``(r_bottom, r_top, height)``, each ``(1,)``, from ``th: (k,)``."""
 
     def verts(self, th, lod):
+        """Bottom cap center, the two rings and the top cap center, ``(2 segments + 2, 3)``."""
         r0, r1, h = self.radii_height(th)
         y = smul(h, 0.5)
         return _revolved(torch.cat([r0, r1]), torch.cat([-y, y]), -y, y, lod)
 
     def faces(self, lod):
+        """Two rings joined by a band and closed by fans from the two cap centers."""
         return mk.loft_faces_np(2, lod.segments, "pole", "pole")
 
     def n_verts(self, lod):
+        """``2 * lod.segments + 2``, without building the faces."""
         return 2 * lod.segments + 2
 
 
@@ -73,6 +79,7 @@ class Cylinder(Frustum):
     params = (P("radius", 0.5), P("height", 1.0))
 
     def radii_height(self, th):
+        """The same ``radius`` at the bottom and the top."""
         r, h = th.split(1)
         return r, r, h
 
@@ -86,6 +93,7 @@ class Cone(Frustum):
     params = (P("radius_bottom", 0.5), P("radius_top", 0.1), P("height", 1.0))
 
     def radii_height(self, th):
+        """``radius_bottom``, ``radius_top`` and ``height`` as they are."""
         return tuple(th.split(1))
 
 
@@ -104,13 +112,16 @@ class UVSphere(Primitive):
     params = (P("radius", 0.5),)
 
     def verts(self, th, lod):
+        """South pole, the ``rings - 1`` latitude rings and north pole, ``((rings - 1) segments + 2, 3)``."""
         s, c = mk.const(_meridian, lod.rings, like=th)
         return _revolved(th * s, th * c, -th, th, lod)
 
     def faces(self, lod):
+        """The latitude bands, closed by fans at the two poles."""
         return mk.loft_faces_np(lod.rings - 1, lod.segments, "pole", "pole")
 
     def n_verts(self, lod):
+        """``(lod.rings - 1) * lod.segments + 2``, without building the faces."""
         return (lod.rings - 1) * lod.segments + 2
 
 
@@ -126,25 +137,30 @@ class Revolve(Primitive):
 
     @classmethod
     def point_params(cls, i, k):
+        """``r{i}`` (default on a bulging half-sine profile) and ``y{i}`` (default evenly spaced in [-0.5, 0.5])."""
         t = i / max(k - 1, 1)
         return (P(f"r{i}", round(0.5 * math.sin(math.pi * (0.15 + 0.7 * t)), 6), 1e-3, 20.0),
                 P(f"y{i}", round(t - 0.5, 6), *POS))
 
     def check(self):
+        """Raises ``InputError`` unless the last profile point is above the first (``y{k-1} > y0``)."""
         ys = self.values[1::2]
         if not ys[-1] > ys[0]:
             raise InputError(f"revolve: expected the profile to end above its start (y{len(ys) - 1} > y0), "
                              f"got y0 = {ys[0]}, y{len(ys) - 1} = {ys[-1]}")
 
     def verts(self, th, lod):
+        """The profile's rings between the axis points ``(0, y0)`` and ``(0, y{k-1})``, ``(k segments + 2, 3)``."""
         pts = th.reshape(-1, 2)
         r, y = pts[:, 0], pts[:, 1]
         return _revolved(r, y, y[:1], y[-1:], lod)
 
     def faces(self, lod):
+        """One ring per profile point, closed by fans at the two axis points."""
         return mk.loft_faces_np(self.size, lod.segments, "pole", "pole")
 
     def n_verts(self, lod):
+        """``size * lod.segments + 2``, without building the faces."""
         return self.size * lod.segments + 2
 
 
@@ -161,6 +177,7 @@ class Extrude(Primitive):
 
     @classmethod
     def point_params(cls, i, k):
+        """``x{i}``, ``z{i}``: defaults on a circle of radius 0.5, counter-clockwise about +Y."""
         a = 2.0 * math.pi * i / k
         return P(f"x{i}", round(0.5 * math.cos(a), 6), *POS), P(f"z{i}", round(-0.5 * math.sin(a), 6), *POS)
 
@@ -173,10 +190,13 @@ class Extrude(Primitive):
         return self._area() < 0.0
 
     def check(self):
+        """Raises ``InputError`` for a polygon of (near) zero signed area."""
         if abs(self._area()) < 1e-12:
             raise InputError(f"extrude: expected a polygon with a non-zero area, got area {self._area() / 2:g}")
 
     def verts(self, th, lod):
+        """Bottom cap center, bottom ring, top ring, top cap center, ``(2 k + 2, 3)``; a clockwise polygon
+        is reversed first."""
         h = smul(th[:1], 0.5)
         pts = th[1:].reshape(-1, 2)
         if self._reversed():
@@ -190,7 +210,9 @@ class Extrude(Primitive):
         return torch.cat([c_lo, ring_lo, ring_hi, c_hi])
 
     def faces(self, lod):
+        """The side band and fan caps from the two centers (the level of detail does not change them)."""
         return mk.loft_faces_np(2, self.size, "pole", "pole")
 
     def n_verts(self, lod):
+        """``2 * size + 2``, without building the faces."""
         return 2 * self.size + 2

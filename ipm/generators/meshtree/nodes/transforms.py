@@ -23,9 +23,11 @@ class Translate(Transform):
     params = (P("x", 0.0, *POS), P("y", 0.0, *POS), P("z", 0.0, *POS))
 
     def affine(self, th):
+        """Identity ``A`` and ``b = (x, y, z)``."""
         return mk.const(np.eye, 3, like=th), th
 
     def affine_jacobian(self, th):
+        """Closed form: ``dA = 0``, ``db = I``."""
         return mk.const(np.zeros, (3, 3, 3), like=th), mk.const(np.eye, 3, like=th)
 
 
@@ -58,6 +60,7 @@ class Rotate(Transform):
     params = (P("angle", 0.0, *ANGLE), P("tilt", 0.0, *ANGLE), P("azimuth", 0.0, *ANGLE))
 
     def affine(self, th):
+        """The rotation matrix (:func:`rotation`) and ``b = 0``."""
         a, t, z = th.split(1)
         return rotation(a, t, z), torch.zeros_like(th)
 
@@ -91,9 +94,11 @@ class Scale(Transform):
     params = (P("factor", 1.0, 1e-3, 100.0),)
 
     def affine(self, th):
+        """``A = factor * I``, ``b = 0``."""
         return th * mk.const(np.eye, 3, like=th), torch.zeros_like(th).expand(3)
 
     def affine_jacobian(self, th):
+        """Closed form: ``dA/dfactor = I``, ``db = 0``."""
         return mk.const(np.eye, 3, like=th)[..., None], mk.const(np.zeros, (3, 1), like=th)
 
 
@@ -112,9 +117,11 @@ class Scale3(Transform):
     params = (P("sx", 1.0, 1e-3, 100.0), P("sy", 1.0, 1e-3, 100.0), P("sz", 1.0, 1e-3, 100.0))
 
     def affine(self, th):
+        """``A = diag(sx, sy, sz)``, ``b = 0``."""
         return torch.diag_embed(th), torch.zeros_like(th)
 
     def affine_jacobian(self, th):
+        """Closed form: ``dA/ds_k`` is the k-th diagonal unit matrix, ``db = 0``."""
         return mk.const(_diag_basis, like=th), mk.const(np.zeros, (3, 3), like=th)
 
 
