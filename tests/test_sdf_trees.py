@@ -119,3 +119,13 @@ def test_tree_gradients_flow_to_every_parameter():
     assert torch.isfinite(theta.grad).all()
     # every continuous parameter changes the shape somewhere
     assert (theta.grad.abs() > 0).all(), theta.grad
+
+
+def test_unknown_tree_preset_is_bad_input_listing_the_known_names():
+    from ipm.errors import InputError
+    from ipm.generators.sdftree import SdfTreeGenerator, tree_presets
+
+    with pytest.raises(InputError, match="unknown tree preset 'nosuch'; known: .*mug"):
+        SdfTreeGenerator.from_preset("nosuch")
+    assert SdfTreeGenerator.from_preset("mug").name == "mug"
+    assert "mug" in tree_presets()

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import torch
 
+from ipm.errors import InputError
 from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, check_field_meshing, register_generator
 from ipm.params import Value
 from ipm.sdf.meshing import mesh_sdf
@@ -51,8 +52,12 @@ class SdfTreeGenerator(Generator):
 
     @staticmethod
     def from_preset(name: str) -> SdfTreeGenerator:
-        """A generator over a shipped tree (:func:`tree_presets`), named after it."""
-        path = tree_presets()[name]
+        """A generator over a shipped tree (:func:`tree_presets`), named after it; ``InputError`` lists the known
+        names."""
+        presets = tree_presets()
+        if name not in presets:
+            raise InputError(f"unknown tree preset {name!r}; known: {', '.join(sorted(presets))}")
+        path = presets[name]
         return SdfTreeGenerator(tree_from_json(json.loads(path.read_text())), name, f"preset {name}")
 
     def tree_for(self, discrete: Mapping[str, int]) -> Tree:
