@@ -196,3 +196,27 @@ def test_surface_term_is_least_on_its_own_mesh_and_its_gradient_matches():
     moved[0] += 0.1
     assert at < float(_value(prob, "surface", moved)[0])
     _check_gradient(prob, "surface", moved, [0, prob.n - 1, prob.layout.pose.start])
+
+
+@pytest.mark.parametrize("budget", [1, 17, 30])
+def test_a_budget_the_pose_grid_nearly_uses_up_still_judges_the_result_on_the_full_objective(mug, budget):
+    """With depth and part labels the outline (a phase of another objective) comes first; it takes at most all
+    but one of the evaluations left, so the result's loss is a recorded loss of the fit's own objective."""
+    from ipm.optim.fit import run_fit
+
+    records = []
+    settings = FitSettings(preset="mug", budget=budget, discrete="memetic", seed=0)
+    res, prob, best = run_fit(mug.gen, mug.target, settings, sink=records.append)
+    assert res.evaluations == budget == len(records)
+    assert res.loss == pytest.approx(min(r["loss"] for r in records if r["phase"] != "outline"))
+
+
+def test_json_output_is_strict_json_with_null_for_numbers_that_are_not_finite(capsys):
+    import json
+
+    from ipm.cli.common import emit
+
+    emit({"loss": float("inf"), "scores": [1.0, float("nan")], "n": 3}, True)
+    out = capsys.readouterr().out
+    assert json.loads(out, parse_constant=lambda c: pytest.fail(f"non-standard JSON constant {c}")) == {
+        "loss": None, "scores": [1.0, None], "n": 3}

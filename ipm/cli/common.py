@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import logging
+import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -164,10 +165,21 @@ def resolve_subdivision(option: str, method: str, levels: int):
     return SCHEMES.get(method)
 
 
+def _finite(obj):
+    """``obj`` with every float that is not finite (inf, NaN) replaced by None, in nested dicts and lists."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
+
+
 def emit(obj, as_json: bool) -> None:
-    """Print a result on stdout: JSON or plain lines."""
+    """Print a result on stdout: JSON (strict: a number that is not finite is written as null) or plain lines."""
     if as_json:
-        sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
+        sys.stdout.write(json.dumps(_finite(obj), indent=2, default=str, allow_nan=False) + "\n")
     elif isinstance(obj, dict):
         for k, v in obj.items():
             sys.stdout.write(f"{k}: {v}\n")

@@ -51,10 +51,14 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
     can turn the handle towards where the depth wants it. Adam's steps have the same size whatever the
     gradient's, so under it the window sizes, which the outline barely sees, drifted (1.5 -> 2.9 m)."""
     starts = space.starts
+    # at most all but one of the evaluations left: the fit's own objective must judge at least one point
+    # after the start's losses are forgotten (a budget the pose grid nearly used up skips the outline)
+    steps = min(max(1, int(settings.budget * OUTLINE_SHARE)), ev.remaining - 1)
+    if steps < 1:
+        return
     try:
         with ev.running(OUTLINE, label="outline"):
-            xo, _ = G.refine(ev, starts[0][0], starts[0][1], max(1, int(settings.budget * OUTLINE_SHARE)), "lbfgs",
-                             mask=prob.search_mask)
+            xo, _ = G.refine(ev, starts[0][0], starts[0][1], steps, "lbfgs", mask=prob.search_mask)
     except BudgetExhausted:
         xo = starts[0][0]
     ev.forget_best()  # the start's losses came before the outline was in place
