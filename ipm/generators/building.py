@@ -179,6 +179,12 @@ def building_spec() -> ParamSpec:
     ))
 
 
+_HOUSE2: dict[str, Value] = {
+    "sections": 1, "floors": 2, "windows": 4, "floor_height": 3.0, "section_width": 10.0, "depth": 8.0,
+    "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2, "window_height": 1.4, "balcony_pattern": 0,
+    "roof_type": 1, "roof_height": 3.5, "roof_overhang": 0.5, "door_width": 1.2, "door_height": 2.2,
+    "door_depth": 0.3}
+
 PRESETS: dict[str, dict[str, Value]] = {
     "panel5": {"sections": 4, "floors": 5, "windows": 4, "floor_height": 2.8, "section_width": 16.0,
                "depth": 12.0, "plinth_height": 0.9, "balcony_pattern": 1, "roof_type": 0,
@@ -186,19 +192,13 @@ PRESETS: dict[str, dict[str, Value]] = {
     "panel9": {"sections": 3, "floors": 9, "windows": 5, "floor_height": 2.8, "section_width": 18.0,
                "depth": 13.0, "plinth_height": 1.0, "window_width": 1.6, "balcony_pattern": 3,
                "balcony_width": 3.2, "roof_type": 0, "roof_height": 1.0, "roof_overhang": 0.2},
-    "house2": {"sections": 1, "floors": 2, "windows": 4, "floor_height": 3.0, "section_width": 10.0,
-               "depth": 8.0, "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2,
-               "window_height": 1.4, "balcony_pattern": 0, "roof_type": 1, "roof_height": 3.5,
-               "roof_overhang": 0.5, "door_width": 1.2, "door_height": 2.2, "door_depth": 0.3},
+    "house2": _HOUSE2,
     "tower": {"sections": 1, "floors": 16, "windows": 4, "floor_height": 3.0, "section_width": 16.0,
               "depth": 16.0, "plinth_height": 1.2, "balcony_pattern": 2, "balcony_width": 2.8,
               "roof_type": 2, "roof_height": 2.5, "roof_ridge": 0.2, "roof_overhang": 0.4},
     # house2 with a gabled wing at the right end of its front: an L-shaped house (LoD2 houses such as
     # the public denhaag_84A7976B are a gabled block with lower annexes)
-    "house_l": {"sections": 1, "floors": 2, "windows": 3, "floor_height": 3.0, "section_width": 11.0,
-                "depth": 8.0, "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2,
-                "window_height": 1.4, "balcony_pattern": 0, "roof_type": 1, "roof_height": 3.5,
-                "roof_overhang": 0.4, "door_width": 1.2, "door_height": 2.2, "door_depth": 0.3,
+    "house_l": {**_HOUSE2, "windows": 3, "section_width": 11.0, "roof_overhang": 0.4,
                 "wings": 1, "wing1_side": 0, "wing1_offset": 1.0, "wing1_width": 5.5, "wing1_length": 4.5,
                 "wing1_height": 6.5, "wing1_roof": 1, "wing1_roof_height": 3.0},
     # a five-storey flat-roofed block with a stair tower on the roof, sized like the public
