@@ -274,17 +274,8 @@ def _check_cues(cues, target: TargetSpec) -> None:
                          f"({', '.join(known) or 'none'}), got {', '.join(unknown)}")
 
 
-def load_experiment(path: str | Path) -> Experiment:
-    """Parse and check an experiment file; :class:`~ipm.errors.InputError` names the file and the problem.
-
-    Everything a run needs is checked here, without running: the nesting (at most :data:`MAX_NESTING`
-    deep, checked on the text before it is parsed), keys (unknown ones are refused), types and ranges
-    (seeds from 0 to :data:`ipm.params.MAX_SEED`), names, every method's settings for every target it applies to
-    (:func:`ipm.bench.methods.check_settings`: unknown generators, presets and settings keys), and that
-    the cues a method asks for can be drawn from those targets (:func:`_check_cues`)."""
-    from ipm.bench.methods import check_settings, requested_cues
-
-    path = Path(path)
+def _read_data(path: Path) -> dict:
+    """The experiment file's TOML tables, nested at most :data:`MAX_NESTING` deep."""
     if not path.is_file():
         raise InputError(f"experiment file not found: {path}")
     from ipm.files import read_text
@@ -303,56 +294,76 @@ def load_experiment(path: str | Path) -> Experiment:
     if depth > MAX_NESTING:
         raise InputError(f"experiment file {path}: expected tables and arrays nested at most {MAX_NESTING} deep "
                          f"(the limit), got {depth} deep")
-    f = _convert(data, _File, str(path))
+    return data
+
+
+def _target_spec(path: Path, t: _TargetFile) -> TargetSpec:
+    """The target ``t`` of the file, checked to be a mesh or a generator (with its preset, random and params)."""
+    if (t.mesh is None) == (t.generator is None):
+        raise InputError(f"{path}: target {t.name}: expected exactly one of mesh or generator")
+    if t.generator is None and (t.preset is not None or t.random or t.params):
+        raise InputError(f"{path}: target {t.name}: preset, random and params go with a generator target")
+    return TargetSpec(name=t.name, mesh=t.mesh, up=t.up, generator=t.generator, preset=t.preset,
+                      random=t.random, seed=t.seed, params=dict(t.params), cls=t.cls)
+
+
+def _method_spec(path: Path, i: int, m: dict, targets: list[TargetSpec]) -> MethodSpec:
+    """The ``i``-th method ``m`` of the file, its settings checked for every target it applies to."""
+    from ipm.bench.methods import check_settings, requested_cues
+
+    keys = {k: v for k, v in m.items() if k in _MethodKeys.__struct_fields__}
+    mk = _convert(keys, _MethodKeys, f"{path}: method {m.get('name', i)}")
+    settings = {k: v for k, v in m.items() if k not in _MethodKeys.__struct_fields__}
+    only = None
+    if mk.targets is not None:
+        only = tuple(mk.targets)
+        missing = sorted(set(only) - {t.name for t in targets})
+        if missing:
+            raise InputError(f"{path}: method {mk.name}: unknown targets {', '.join(missing)}; "
+                             f"targets: {', '.join(t.name for t in targets)}")
+    seeds, seeds_by_views = None, None
+    if isinstance(mk.seeds, dict):
+        bad = [k for k in mk.seeds if not (k.isdigit() and int(k) >= 1)]
+        if bad:
+            raise InputError(f"{path}: method {mk.name}: seeds per views must map a number of views (1 or "
+                             f"more) to a list of seeds, got {bad[0]!r}")
+        seeds_by_views = {int(k): tuple(v) for k, v in mk.seeds.items()}
+    elif mk.seeds is not None:
+        seeds = tuple(mk.seeds)
+    applies = [t for t in targets if only is None or t.name in only]
+    if mk.by_class is not None:
+        settings["by_class"] = mk.by_class
+        missing = sorted({t.name for t in applies if t.cls not in mk.by_class})
+        if missing:
+            raise InputError(f"{path}: method {mk.name}: by_class must give a table of settings for the "
+                             f"class of every target it applies to; missing for {', '.join(missing)}")
+    spec = MethodSpec(mk.name, mk.method, tuple(mk.views) if mk.views else None, settings, only, seeds,
+                      seeds_by_views, mk.budget)
+    for t in applies or targets[:1]:
+        try:
+            check_settings(mk.method, spec.settings_for(t))
+            if applies:
+                _check_cues(requested_cues(mk.method, spec.settings_for(t)), t)
+        except InputError as e:
+            raise InputError(f"{path}: method {mk.name}" + (f", target {t.name}" if mk.by_class else "")
+                             + f": {e}") from None
+    return spec
+
+
+def load_experiment(path: str | Path) -> Experiment:
+    """Parse and check an experiment file; :class:`~ipm.errors.InputError` names the file and the problem.
+
+    Everything a run needs is checked here, without running: the nesting (at most :data:`MAX_NESTING`
+    deep, checked on the text before it is parsed), keys (unknown ones are refused), types and ranges
+    (seeds from 0 to :data:`ipm.params.MAX_SEED`), names, every method's settings for every target it applies to
+    (:func:`ipm.bench.methods.check_settings`: unknown generators, presets and settings keys), and that
+    the cues a method asks for can be drawn from those targets (:func:`_check_cues`)."""
+    path = Path(path)
+    f = _convert(_read_data(path), _File, str(path))
     # paths in the file are relative to the project root: the experiments folder's parent
     root = path.resolve().parent.parent
-    targets = []
-    for t in f.targets:
-        if (t.mesh is None) == (t.generator is None):
-            raise InputError(f"{path}: target {t.name}: expected exactly one of mesh or generator")
-        if t.generator is None and (t.preset is not None or t.random or t.params):
-            raise InputError(f"{path}: target {t.name}: preset, random and params go with a generator target")
-        targets.append(TargetSpec(name=t.name, mesh=t.mesh, up=t.up, generator=t.generator, preset=t.preset,
-                                  random=t.random, seed=t.seed, params=dict(t.params), cls=t.cls))
-    methods = []
-    for i, m in enumerate(f.methods):
-        keys = {k: v for k, v in m.items() if k in _MethodKeys.__struct_fields__}
-        mk = _convert(keys, _MethodKeys, f"{path}: method {m.get('name', i)}")
-        settings = {k: v for k, v in m.items() if k not in _MethodKeys.__struct_fields__}
-        only = None
-        if mk.targets is not None:
-            only = tuple(mk.targets)
-            missing = sorted(set(only) - {t.name for t in targets})
-            if missing:
-                raise InputError(f"{path}: method {mk.name}: unknown targets {', '.join(missing)}; "
-                                 f"targets: {', '.join(t.name for t in targets)}")
-        seeds, seeds_by_views = None, None
-        if isinstance(mk.seeds, dict):
-            bad = [k for k in mk.seeds if not (k.isdigit() and int(k) >= 1)]
-            if bad:
-                raise InputError(f"{path}: method {mk.name}: seeds per views must map a number of views (1 or "
-                                 f"more) to a list of seeds, got {bad[0]!r}")
-            seeds_by_views = {int(k): tuple(v) for k, v in mk.seeds.items()}
-        elif mk.seeds is not None:
-            seeds = tuple(mk.seeds)
-        applies = [t for t in targets if only is None or t.name in only]
-        if mk.by_class is not None:
-            settings["by_class"] = mk.by_class
-            missing = sorted({t.name for t in applies if t.cls not in mk.by_class})
-            if missing:
-                raise InputError(f"{path}: method {mk.name}: by_class must give a table of settings for the "
-                                 f"class of every target it applies to; missing for {', '.join(missing)}")
-        spec = MethodSpec(mk.name, mk.method, tuple(mk.views) if mk.views else None, settings, only, seeds,
-                          seeds_by_views, mk.budget)
-        for t in applies or targets[:1]:
-            try:
-                check_settings(mk.method, spec.settings_for(t))
-                if applies:
-                    _check_cues(requested_cues(mk.method, spec.settings_for(t)), t)
-            except InputError as e:
-                raise InputError(f"{path}: method {mk.name}" + (f", target {t.name}" if mk.by_class else "")
-                                 + f": {e}") from None
-        methods.append(spec)
+    targets = [_target_spec(path, t) for t in f.targets]
+    methods = [_method_spec(path, i, m, targets) for i, m in enumerate(f.methods)]
     names = [t.name for t in targets] + [m.name for m in methods]
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})

@@ -72,6 +72,7 @@ vertices are exactly those of the generator before wings existed.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 import torch
@@ -178,6 +179,12 @@ def building_spec() -> ParamSpec:
     ))
 
 
+_HOUSE2: dict[str, Value] = {
+    "sections": 1, "floors": 2, "windows": 4, "floor_height": 3.0, "section_width": 10.0, "depth": 8.0,
+    "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2, "window_height": 1.4, "balcony_pattern": 0,
+    "roof_type": 1, "roof_height": 3.5, "roof_overhang": 0.5, "door_width": 1.2, "door_height": 2.2,
+    "door_depth": 0.3}
+
 PRESETS: dict[str, dict[str, Value]] = {
     "panel5": {"sections": 4, "floors": 5, "windows": 4, "floor_height": 2.8, "section_width": 16.0,
                "depth": 12.0, "plinth_height": 0.9, "balcony_pattern": 1, "roof_type": 0,
@@ -185,19 +192,13 @@ PRESETS: dict[str, dict[str, Value]] = {
     "panel9": {"sections": 3, "floors": 9, "windows": 5, "floor_height": 2.8, "section_width": 18.0,
                "depth": 13.0, "plinth_height": 1.0, "window_width": 1.6, "balcony_pattern": 3,
                "balcony_width": 3.2, "roof_type": 0, "roof_height": 1.0, "roof_overhang": 0.2},
-    "house2": {"sections": 1, "floors": 2, "windows": 4, "floor_height": 3.0, "section_width": 10.0,
-               "depth": 8.0, "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2,
-               "window_height": 1.4, "balcony_pattern": 0, "roof_type": 1, "roof_height": 3.5,
-               "roof_overhang": 0.5, "door_width": 1.2, "door_height": 2.2, "door_depth": 0.3},
+    "house2": _HOUSE2,
     "tower": {"sections": 1, "floors": 16, "windows": 4, "floor_height": 3.0, "section_width": 16.0,
               "depth": 16.0, "plinth_height": 1.2, "balcony_pattern": 2, "balcony_width": 2.8,
               "roof_type": 2, "roof_height": 2.5, "roof_ridge": 0.2, "roof_overhang": 0.4},
     # house2 with a gabled wing at the right end of its front: an L-shaped house (LoD2 houses such as
     # the public denhaag_84A7976B are a gabled block with lower annexes)
-    "house_l": {"sections": 1, "floors": 2, "windows": 3, "floor_height": 3.0, "section_width": 11.0,
-                "depth": 8.0, "plinth_height": 0.5, "wall_thickness": 0.4, "window_width": 1.2,
-                "window_height": 1.4, "balcony_pattern": 0, "roof_type": 1, "roof_height": 3.5,
-                "roof_overhang": 0.4, "door_width": 1.2, "door_height": 2.2, "door_depth": 0.3,
+    "house_l": {**_HOUSE2, "windows": 3, "section_width": 11.0, "roof_overhang": 0.4,
                 "wings": 1, "wing1_side": 0, "wing1_offset": 1.0, "wing1_width": 5.5, "wing1_length": 4.5,
                 "wing1_height": 6.5, "wing1_roof": 1, "wing1_roof_height": 3.0},
     # a five-storey flat-roofed block with a stair tower on the roof, sized like the public
@@ -241,6 +242,148 @@ def _wing(side: int, kind: int, q: Mapping[str, torch.Tensor], hx, hz, embed, ov
     return (lo, hi), torch.stack([vx + cx, vy, vz + cz], -1)
 
 
+@dataclass(frozen=True)
+class _Layout:
+    """The main block's layout that its parts share (names as in the module docstring; tensors (1,) unless
+    said): sections S, floors F, windows per section W and per floor and facade N; section width sw, wall
+    thickness wt, plinth P, half sizes hx, hz, top of the walls T, window bay, clamped window width ww and
+    height wh; window centers cx (N,), floor levels yf (F,), window bottoms wb and tops wtop (F,), window
+    sides x0, x1 (N,); ``theta`` for the constants' dtype and AD level."""
+
+    theta: torch.Tensor
+    S: int
+    F: int
+    W: int
+    N: int
+    sw: torch.Tensor
+    wt: torch.Tensor
+    P: torch.Tensor
+    hx: torch.Tensor
+    hz: torch.Tensor
+    T: torch.Tensor
+    bay: torch.Tensor
+    ww: torch.Tensor
+    wh: torch.Tensor
+    cx: torch.Tensor
+    yf: torch.Tensor
+    wb: torch.Tensor
+    wtop: torch.Tensor
+    x0: torch.Tensor
+    x1: torch.Tensor
+
+
+def _layout(theta: torch.Tensor, p: Mapping[str, torch.Tensor], d: Mapping[str, int]) -> _Layout:
+    """The main block's layout for the sizes ``p`` (split from ``theta``) and the discrete values ``d``."""
+    S, F, W = d["sections"], d["floors"], d["windows"]
+    N = S * W                                                    # windows per floor and facade
+    fh, sw, D, wt = p["floor_height"], p["section_width"], p["depth"], p["wall_thickness"]
+    P = p["plinth_height"]
+    hx, hz = smul(sw, 0.5 * S), smul(D, 0.5)
+    T = P + smul(fh, float(F))                                   # top of the walls
+    bay = smul(sw, 1.0 / W)
+    ww = torch.minimum(p["window_width"], smul(bay, 0.9))
+    wh = torch.minimum(p["window_height"], smul(fh, 0.85))
+    sill = torch.minimum(p["window_sill"], smul(fh, 0.95) - wh)
+    cx = mk.const(mk.half_steps, N, like=theta) * bay - hx                        # (N,) window centers
+    yf = P + mk.const(mk.steps, 0, F, like=theta) * fh                             # (F,) floor levels
+    wb = yf + sill                                                                 # window bottoms
+    wtop = wb + wh
+    hw = smul(ww, 0.5)
+    return _Layout(theta, S, F, W, N, sw, wt, P, hx, hz, T, bay, ww, wh, cx, yf, wb, wtop, cx - hw, cx + hw)
+
+
+def _main_walls(L: _Layout, back_windows: int) -> list[tuple[torch.Tensor, torch.Tensor]]:
+    """The main block's wall boxes ``(lo, hi)``: plinth, core, and per facade with windows the bands and
+    piers around the openings."""
+    hx, hz, wt, P = L.hx, L.hz, L.wt, L.P
+    zero = torch.zeros_like(P)
+    z_core_back = -(hz - wt) if back_windows else -hz
+    wall = [_boxes((-hx, hx), (zero, P), (-hz, hz)), _boxes((-hx, hx), (P, L.T), (z_core_back, hz - wt))]
+    band_y = (torch.cat([P, L.wtop]), torch.cat([L.wb, L.T]))                     # (F + 1,)
+    pier_x = (torch.cat([-hx, L.x1]), torch.cat([L.x0, hx]))                      # (N + 1,)
+    for side in (1, -1) if back_windows else (1,):
+        z = (hz - wt, hz) if side > 0 else (-hz, wt - hz)
+        wall.append(_boxes((-hx, hx), band_y, z))
+        wall.append(_boxes((pier_x[0][None, :], pier_x[1][None, :]), (L.wb[:, None], L.wtop[:, None]), z))
+    return wall
+
+
+def _wings(L: _Layout, p: Mapping[str, torch.Tensor], d: Mapping[str, int]) -> tuple[list, list[torch.Tensor]]:
+    """The wings' wall boxes ``(lo, hi)`` and their roofs' vertices (:func:`_wing`)."""
+    embed = torch.minimum(L.hx, L.hz)
+    boxes, roofs = [], []
+    for i in range(1, d["wings"] + 1):
+        q = {k: p[f"wing{i}_{k}"] for k in ("width", "length", "offset", "height", "roof_height")}
+        box, roof = _wing(d[f"wing{i}_side"], d[f"wing{i}_roof"], q, L.hx, L.hz, embed, p["roof_overhang"], p)
+        boxes.append(box)
+        roofs.append(roof)
+    return boxes, roofs
+
+
+def _roof_boxes(L: _Layout, p: Mapping[str, torch.Tensor], d: Mapping[str, int]) -> list:
+    """The roof-top boxes' wall boxes ``(lo, hi)``, each clamped to the main block's roof."""
+    hx, hz, T = L.hx, L.hz, L.T
+    out = []
+    for k in range(1, d["roof_boxes"] + 1):
+        r = f"roof_box{k}_"
+        hbx = smul(torch.minimum(p[r + "width"], smul(hx, 2.0)), 0.5)
+        hbz = smul(torch.minimum(p[r + "depth"], smul(hz, 2.0)), 0.5)
+        bcx, bcz = p[r + "x"] * (hx - hbx), p[r + "z"] * (hz - hbz)
+        out.append(_boxes((bcx - hbx, bcx + hbx), (T, T + p[r + "height"]), (bcz - hbz, bcz + hbz)))
+    return out
+
+
+def _windows(L: _Layout, p: Mapping[str, torch.Tensor], back_windows: int) -> list[torch.Tensor]:
+    """The windows' vertices, front (and back): per window a box with a pocket, loops back -> front outer
+    -> front inner -> pane (about +Z)."""
+    F, N, x0, x1, wb, wtop, hz, wt = L.F, L.N, L.x0, L.x1, L.wb, L.wtop, L.hz, L.wt
+    fw = torch.minimum(p["frame_width"], smul(torch.minimum(L.ww, L.wh), 0.3))
+    inset = torch.minimum(p["window_inset"], smul(wt, 0.8))
+    ox = torch.stack([x1, x1, x0, x0], -1)[None].expand(F, -1, -1)                # (F, N, 4)
+    ix = torch.stack([x1 - fw, x1 - fw, x0 + fw, x0 + fw], -1)[None].expand(F, -1, -1)
+    oy = torch.stack([wb, wtop, wtop, wb], -1)[:, None].expand(-1, N, -1)
+    iy = torch.stack([wb + fw, wtop - fw, wtop - fw, wb + fw], -1)[:, None].expand(-1, N, -1)
+    zs = torch.cat([hz - wt, hz + p["frame_depth"], hz + p["frame_depth"], hz - inset])   # (4,)
+    X = torch.stack([ox, ox, ix, ix], 2)                                           # (F, N, 4, 4)
+    Y = torch.stack([oy, oy, iy, iy], 2)
+    Z = zs[:, None].expand(4, 4).expand(F, N, 4, 4)
+    win_front = torch.stack([X, Y, Z], -1).reshape(-1, 3)
+    return [win_front] + ([_rot180(win_front)] if back_windows else [])
+
+
+def _balconies(L: _Layout, p: Mapping[str, torch.Tensor], pattern: int) -> tuple[list[torch.Tensor], int]:
+    """The balconies' vertices (none, or one tensor) and their number: L-shaped prisms along +X, the loop
+    (y, z) counter-clockwise about +X from the parapet's inner corner so that the caps can fan from it."""
+    I, J = _balcony_slots(L.F, L.N, L.W, pattern)
+    n_bal = len(I)
+    if not n_bal:
+        return [], 0
+    I_t, J_t = torch.as_tensor(I), torch.as_tensor(J)
+    bd = p["balcony_depth"]
+    half = smul(torch.minimum(p["balcony_width"], L.bay), 0.5)
+    bt = p["balcony_thickness"]
+    pt = torch.minimum(bt, smul(bd, 0.5))
+    y0 = L.yf[I_t]                                                                # (B,)
+    c = L.cx[J_t]
+    zb, zf = L.hz - smul(L.wt, 0.5), L.hz + bd
+    zi = zf - pt
+    top, bottom = y0 + p["balcony_height"], y0 - bt
+    Yl = torch.stack([y0, top, top, bottom, bottom, y0], -1)
+    Zl = torch.cat([zi, zi, zf, zf, zb, zb])[None].expand(n_bal, -1)
+    Xl = torch.stack([c - half, c + half], -1)                                    # (B, 2)
+    return [torch.stack([Xl[:, :, None].expand(-1, -1, 6), Yl[:, None].expand(-1, 2, -1),
+                         Zl[:, None].expand(-1, 2, -1)], -1).reshape(-1, 3)], n_bal
+
+
+def _doors(L: _Layout, p: Mapping[str, torch.Tensor]) -> torch.Tensor:
+    """The doors' vertices: one porch box per section."""
+    sc = mk.const(mk.half_steps, L.S, like=L.theta) * L.sw - L.hx
+    dw = smul(torch.minimum(p["door_width"], smul(L.sw, 0.9)), 0.5)
+    lo, hi = _boxes((sc - dw, sc + dw), (torch.zeros_like(L.P), p["door_height"]),
+                    (L.hz - smul(L.wt, 0.5), L.hz + p["door_depth"]))
+    return mk.box_verts(lo, hi)
+
+
 class BuildingGenerator(Generator):
     """Panel buildings (see the module docstring). ``lod`` is accepted and ignored: every part is
     already its exact box or prism."""
@@ -271,107 +414,25 @@ class BuildingGenerator(Generator):
             raise InputError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
         d = self._discrete(discrete)
         p = dict(zip(self._names, theta.split(1)))
-        S, F, W = d["sections"], d["floors"], d["windows"]
-        N = S * W                                                    # windows per floor and facade
-        fh, sw, D, wt = p["floor_height"], p["section_width"], p["depth"], p["wall_thickness"]
-        P = p["plinth_height"]
-        hx, hz = smul(sw, 0.5 * S), smul(D, 0.5)
-        T = P + smul(fh, float(F))                                   # top of the walls
-        bay = smul(sw, 1.0 / W)
-        ww = torch.minimum(p["window_width"], smul(bay, 0.9))
-        wh = torch.minimum(p["window_height"], smul(fh, 0.85))
-        sill = torch.minimum(p["window_sill"], smul(fh, 0.95) - wh)
-        cx = mk.const(mk.half_steps, N, like=theta) * bay - hx                        # (N,) window centers
-        yf = P + mk.const(mk.steps, 0, F, like=theta) * fh                             # (F,) floor levels
-        wb = yf + sill                                                                 # window bottoms
-        wtop = wb + wh
-        hw = smul(ww, 0.5)
-        x0, x1 = cx - hw, cx + hw
-        facades = (1, -1) if d["back_windows"] else (1,)
-
-        # walls: plinth, core, and per facade the bands and piers around the openings
-        zero = torch.zeros_like(P)
-        z_core_back = -(hz - wt) if d["back_windows"] else -hz
-        wall = [_boxes((-hx, hx), (zero, P), (-hz, hz)), _boxes((-hx, hx), (P, T), (z_core_back, hz - wt))]
-        band_y = (torch.cat([P, wtop]), torch.cat([wb, T]))                           # (F + 1,)
-        pier_x = (torch.cat([-hx, x1]), torch.cat([x0, hx]))                          # (N + 1,)
-        for side in facades:
-            z = (hz - wt, hz) if side > 0 else (-hz, wt - hz)
-            wall.append(_boxes((-hx, hx), band_y, z))
-            wall.append(_boxes((pier_x[0][None, :], pier_x[1][None, :]), (wb[:, None], wtop[:, None]), z))
-
+        L = _layout(theta, p, d)
+        # the parts are built in this order (main walls, wings, roof-top boxes, windows, balconies, doors,
+        # roofs) so that backward sums the gradients in the same order as it always did
+        wall = _main_walls(L, d["back_windows"])
         # wings (walls and roofs) and roof-top boxes (walls) after the main block's parts of each group
-        ov = p["roof_overhang"]
-        embed = torch.minimum(hx, hz)
-        wing_roofs = []
-        for i in range(1, d["wings"] + 1):
-            q = {k: p[f"wing{i}_{k}"] for k in ("width", "length", "offset", "height", "roof_height")}
-            box, roof = _wing(d[f"wing{i}_side"], d[f"wing{i}_roof"], q, hx, hz, embed, ov, p)
-            wall.append(box)
-            wing_roofs.append(roof)
-        for k in range(1, d["roof_boxes"] + 1):
-            r = f"roof_box{k}_"
-            hbx = smul(torch.minimum(p[r + "width"], smul(hx, 2.0)), 0.5)
-            hbz = smul(torch.minimum(p[r + "depth"], smul(hz, 2.0)), 0.5)
-            bcx, bcz = p[r + "x"] * (hx - hbx), p[r + "z"] * (hz - hbz)
-            wall.append(_boxes((bcx - hbx, bcx + hbx), (T, T + p[r + "height"]), (bcz - hbz, bcz + hbz)))
-        lo, hi = (torch.cat(t) for t in zip(*wall))
+        wing_walls, wing_roofs = _wings(L, p, d)
+        lo, hi = (torch.cat(t) for t in zip(*wall, *wing_walls, *_roof_boxes(L, p, d)))
         wall_v = mk.box_verts(lo, hi)
-        n_wall = lo.shape[0]
-
-        # windows: a box with a pocket, loops back -> front outer -> front inner -> pane (about +Z)
-        fw = torch.minimum(p["frame_width"], smul(torch.minimum(ww, wh), 0.3))
-        inset = torch.minimum(p["window_inset"], smul(wt, 0.8))
-        ox = torch.stack([x1, x1, x0, x0], -1)[None].expand(F, -1, -1)                # (F, N, 4)
-        ix = torch.stack([x1 - fw, x1 - fw, x0 + fw, x0 + fw], -1)[None].expand(F, -1, -1)
-        oy = torch.stack([wb, wtop, wtop, wb], -1)[:, None].expand(-1, N, -1)
-        iy = torch.stack([wb + fw, wtop - fw, wtop - fw, wb + fw], -1)[:, None].expand(-1, N, -1)
-        zs = torch.cat([hz - wt, hz + p["frame_depth"], hz + p["frame_depth"], hz - inset])   # (4,)
-        X = torch.stack([ox, ox, ix, ix], 2)                                           # (F, N, 4, 4)
-        Y = torch.stack([oy, oy, iy, iy], 2)
-        Z = zs[:, None].expand(4, 4).expand(F, N, 4, 4)
-        win_front = torch.stack([X, Y, Z], -1).reshape(-1, 3)
-        win_v = [win_front] + ([_rot180(win_front)] if d["back_windows"] else [])
-        n_win = F * N * len(facades)
-
-        # balconies: L-shaped prisms along +X, loop (y, z) counter-clockwise about +X starting at the
-        # parapet's inner corner so that the caps can fan from it
-        I, J = _balcony_slots(F, N, W, d["balcony_pattern"])
-        n_bal = len(I)
-        bal_v = []
-        if n_bal:
-            I_t, J_t = torch.as_tensor(I), torch.as_tensor(J)
-            bd = p["balcony_depth"]
-            half = smul(torch.minimum(p["balcony_width"], bay), 0.5)
-            bt = p["balcony_thickness"]
-            pt = torch.minimum(bt, smul(bd, 0.5))
-            y0 = yf[I_t]                                                              # (B,)
-            c = cx[J_t]
-            zb, zf = hz - smul(wt, 0.5), hz + bd
-            zi = zf - pt
-            top, bottom = y0 + p["balcony_height"], y0 - bt
-            Yl = torch.stack([y0, top, top, bottom, bottom, y0], -1)
-            Zl = torch.cat([zi, zi, zf, zf, zb, zb])[None].expand(n_bal, -1)
-            Xl = torch.stack([c - half, c + half], -1)                                # (B, 2)
-            bal_v.append(torch.stack([Xl[:, :, None].expand(-1, -1, 6), Yl[:, None].expand(-1, 2, -1),
-                                      Zl[:, None].expand(-1, 2, -1)], -1).reshape(-1, 3))
-
-        # doors: one porch box per section
-        n_door = S if d["has_door"] else 0
-        door_v = []
-        if n_door:
-            sc = mk.const(mk.half_steps, S, like=theta) * sw - hx
-            dw = smul(torch.minimum(p["door_width"], smul(sw, 0.9)), 0.5)
-            lo, hi = _boxes((sc - dw, sc + dw), (zero, p["door_height"]),
-                            (hz - smul(wt, 0.5), hz + p["door_depth"]))
-            door_v.append(mk.box_verts(lo, hi))
-
+        win_v = _windows(L, p, d["back_windows"])
+        bal_v, n_bal = _balconies(L, p, d["balcony_pattern"])
+        n_door = L.S if d["has_door"] else 0
+        door_v = [_doors(L, p)] if n_door else []
         # roof of the main block, then the wings'
-        roof_v = roof_verts(d["roof_type"], hx + ov, hz + ov, T, T + p["roof_height"], p)
+        ov = p["roof_overhang"]
+        roof_v = roof_verts(d["roof_type"], L.hx + ov, L.hz + ov, L.T, L.T + p["roof_height"], p)
         kinds = (d["roof_type"], *(d[f"wing{i}_roof"] for i in range(1, d["wings"] + 1)))
-
         verts = [wall_v, *win_v, *bal_v, *door_v, roof_v, *wing_roofs]
-        return self._topology(n_wall, n_win, n_bal, n_door, kinds).mesh(verts)
+        n_win = L.F * L.N * (1 + d["back_windows"])
+        return self._topology(lo.shape[0], n_win, n_bal, n_door, kinds).mesh(verts)
 
     def _topology(self, n_wall: int, n_win: int, n_bal: int, n_door: int, roofs: tuple[int, ...]) -> mk.Topology:
         key = (n_wall, n_win, n_bal, n_door, roofs)

@@ -239,15 +239,12 @@ def _part_maps(folder: Path, views: list[Path], masks: np.ndarray) -> tuple[np.n
 
 # -- photos ------------------------------------------------------------------------------------------
 
-def _photo_target(files: TargetFiles, device, dtype):
-    import cv2
-
-    from ipm.io.masks import read_mask, read_photo
-    from ipm.optim.targets import MaskTarget
-    from ipm.render.camera import crop_camera, load_intrinsics, orbit_camera
+def _photo_mask(files: TargetFiles, image: np.ndarray) -> np.ndarray:
+    """The photo's soft mask (H, W) float: read from ``--mask`` or segmented inside ``--box``; checked to
+    have foreground and background."""
+    from ipm.io.masks import read_mask
     from ipm.segment import box_mask, check_box
 
-    image = read_photo(files.image)
     H, W = image.shape[:2]
     if files.mask is not None:
         mask = read_mask(files.mask, soft=True)
@@ -265,19 +262,53 @@ def _photo_target(files: TargetFiles, device, dtype):
         raise InputError(f"--mask {files.mask}: expected some foreground pixels (> 127), got none")
     if fg.all():
         raise InputError(f"--mask {files.mask}: expected the object inside the photo, got no background")
-    depth = None
-    if files.depth is not None:
-        from ipm.io.cues import read_depth
+    return mask
 
-        path = Path(files.depth)
-        if path.is_dir():
-            raise InputError(f"--depth {path}: expected the photo's depth map (.npy or 16-bit .png), got a folder")
-        depth = read_depth(path, png_scale=files.depth_scale)
-        if depth.shape != (H, W):
-            raise InputError(f"--depth {path}: expected {W}x{H} pixels like the photo and its mask, got "
-                             f"{depth.shape[1]}x{depth.shape[0]} (depth and mask must be of one size)")
-        if not np.isfinite(depth[fg]).any():
-            raise InputError(f"--depth {path}: expected a valid depth on some of the object's pixels, got none")
+
+def _photo_depth(files: TargetFiles, fg: np.ndarray) -> np.ndarray | None:
+    """The photo's depth map (H, W) float from ``--depth`` (None without one), checked against the
+    foreground ``fg`` (H, W) bool."""
+    from ipm.io.cues import read_depth
+
+    if files.depth is None:
+        return None
+    H, W = fg.shape
+    path = Path(files.depth)
+    if path.is_dir():
+        raise InputError(f"--depth {path}: expected the photo's depth map (.npy or 16-bit .png), got a folder")
+    depth = read_depth(path, png_scale=files.depth_scale)
+    if depth.shape != (H, W):
+        raise InputError(f"--depth {path}: expected {W}x{H} pixels like the photo and its mask, got "
+                         f"{depth.shape[1]}x{depth.shape[0]} (depth and mask must be of one size)")
+    if not np.isfinite(depth[fg]).any():
+        raise InputError(f"--depth {path}: expected a valid depth on some of the object's pixels, got none")
+    return depth
+
+
+def _crop(fg: np.ndarray) -> tuple[int, int, int]:
+    """The square crop ``(x0, y0, side)`` around the foreground ``fg`` (H, W) bool, inside the photo."""
+    H, W = fg.shape
+    ys, xs = np.nonzero(fg)
+    side = int(math.ceil(max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1) * (1 + 2 * CROP_MARGIN)))
+    side = min(side, W, H)
+    x0 = int(np.clip(round((xs.min() + xs.max() + 1) / 2 - side / 2), 0, W - side))
+    y0 = int(np.clip(round((ys.min() + ys.max() + 1) / 2 - side / 2), 0, H - side))
+    return x0, y0, side
+
+
+def _photo_target(files: TargetFiles, device, dtype):
+    """The fit's target for a photo (its crop, resampled) and the :class:`Photo` that maps results back."""
+    import cv2
+
+    from ipm.io.masks import read_photo
+    from ipm.optim.targets import MaskTarget
+    from ipm.render.camera import crop_camera, load_intrinsics, orbit_camera
+
+    image = read_photo(files.image)
+    H, W = image.shape[:2]
+    mask = _photo_mask(files, image)
+    fg = mask > 0.5
+    depth = _photo_depth(files, fg)
     if files.intrinsics is not None:
         intr = load_intrinsics(files.intrinsics)
         if (intr.width, intr.height) != (W, H):
@@ -290,12 +321,7 @@ def _photo_target(files: TargetFiles, device, dtype):
     if depth is not None:
         unit = float(np.nanmedian(depth[fg])) / SCENE_DISTANCE
     full = orbit_camera(0.0, 25.0, SCENE_DISTANCE, fov_deg=fov, width=W, height=H, cx=cx, cy=cy)
-    # the square crop around the mask
-    ys, xs = np.nonzero(fg)
-    side = int(math.ceil(max(xs.max() - xs.min() + 1, ys.max() - ys.min() + 1) * (1 + 2 * CROP_MARGIN)))
-    side = min(side, W, H)
-    x0 = int(np.clip(round((xs.min() + xs.max() + 1) / 2 - side / 2), 0, W - side))
-    y0 = int(np.clip(round((ys.min() + ys.max() + 1) / 2 - side / 2), 0, H - side))
+    x0, y0, side = _crop(fg)
     n = files.size
     scale = n / side
     cam = crop_camera(full, x0, y0, side, side, scale)

@@ -50,6 +50,29 @@ def _narrowed(p: Param, rng) -> Param:
     return dataclasses.replace(p, lo=lo, hi=hi, default=min(max(p.default, lo), hi))
 
 
+def _searched(gen, settings: FitSettings) -> list[Param]:
+    """The discrete parameters the fit searches (none with ``discrete="none"``), their ranges narrowed to
+    ``settings.ranges``, within the strategy's own limits."""
+    searched = [_narrowed(p, settings.ranges.get(p.name)) for p in gen.spec.discrete if p.name not in settings.fix]
+    unknown = sorted(set(settings.ranges) - {p.name for p in searched})
+    if unknown:
+        raise InputError(f"ranges: {', '.join(unknown)}: not a searched discrete parameter; expected one of "
+                         f"{', '.join(p.name for p in searched) or 'none'}")
+    if settings.discrete == "none":
+        searched = []
+    from ipm.optim.strategies import STRATEGIES
+
+    strategy = STRATEGIES[settings.discrete]
+    if getattr(strategy, "ranged_only", False) and settings.ranges:
+        # a strategy that searches only the parameters given ranges (enumerate, when some are; it says
+        # so when it runs): the others are held at the start's values, as if fixed
+        searched = [p for p in searched if p.name in settings.ranges]
+    pre_check = getattr(strategy, "check", None)  # a strategy's own limits
+    if pre_check is not None and searched:
+        pre_check(searched)
+    return searched
+
+
 class Problem:
     """A generator, a target and the layout of the search vector (see the module docstring)."""
 
@@ -75,24 +98,7 @@ class Problem:
         self._per = [(i, p) for i, p in enumerate(gen.spec.continuous)
                      if p.per is not None and p.per in self.d0]
         self.lo, self.hi = gen.spec.lower(), gen.spec.upper()
-        self.searched = [_narrowed(p, settings.ranges.get(p.name)) for p in gen.spec.discrete
-                         if p.name not in settings.fix]
-        unknown = sorted(set(settings.ranges) - {p.name for p in self.searched})
-        if unknown:
-            raise InputError(f"ranges: {', '.join(unknown)}: not a searched discrete parameter; expected one of "
-                             f"{', '.join(p.name for p in self.searched) or 'none'}")
-        if settings.discrete == "none":
-            self.searched = []
-        from ipm.optim.strategies import STRATEGIES
-
-        strategy = STRATEGIES[settings.discrete]
-        if getattr(strategy, "ranged_only", False) and settings.ranges:
-            # a strategy that searches only the parameters given ranges (enumerate, when some are; it says
-            # so when it runs): the others are held at the start's values, as if fixed
-            self.searched = [p for p in self.searched if p.name in settings.ranges]
-        pre_check = getattr(strategy, "check", None)  # a strategy's own limits
-        if pre_check is not None and self.searched:
-            pre_check(self.searched)
+        self.searched = _searched(gen, settings)
         self.d0 = self.clamp_discrete(self.d0)
         if settings.subdivide is not None and not self.shape.has_faces:
             raise InputError(f"subdivision: applies to mesh generators; {gen.name} is an SDF generator")

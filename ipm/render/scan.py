@@ -153,19 +153,7 @@ def span_rows(tri_xy: torch.Tensor, pad: float, width: int, height: int,
         kept[line[0]] = True
         remap = torch.cumsum(kept.long(), 0) - 1
         line[0] = remap[line[0]]
-        # runs longer than the largest piece are cut (rare: big triangles)
-        kmax = PIECE_SIZES[-1]
-        n = line[3] - line[2]
-        long_ = n > kmax
-        if bool(long_.any()):
-            lng = line[:, long_]
-            per = (lng[3] - lng[2] + kmax - 1) // kmax
-            r = torch.repeat_interleave(torch.arange(lng.shape[1], device=dev), per)
-            piece = torch.arange(r.shape[0], device=dev) - (torch.cumsum(per, 0) - per)[r]
-            lng = lng[:, r]
-            lng[2] += piece * kmax
-            line = torch.cat([line[:, ~long_], lng], 1)
-        line[3] = (line[3] - line[2]).clamp_max(kmax)  # piece length
+        line = _pieces(line)
         cls = torch.bucketize(line[3], torch.tensor(PIECE_SIZES, device=dev))  # smallest size that holds it
         groups = []
         for (c0, c1), k in _merged_classes(cls):
@@ -173,6 +161,26 @@ def span_rows(tri_xy: torch.Tensor, pad: float, width: int, height: int,
             g = line.index_select(1, pick)
             groups.append(PixelRows(g[0], g[1], g[2], g[3], int(k)))
     return groups, kept
+
+
+def _pieces(line: torch.Tensor) -> torch.Tensor:
+    """The runs ``line`` (4, L) (triangle, row, first column, end column) cut into pieces of at most the
+    largest piece size, as (4, L') triangle, row, first column, piece length."""
+    # runs longer than the largest piece are cut (rare: big triangles)
+    dev = line.device
+    kmax = PIECE_SIZES[-1]
+    n = line[3] - line[2]
+    long_ = n > kmax
+    if bool(long_.any()):
+        lng = line[:, long_]
+        per = (lng[3] - lng[2] + kmax - 1) // kmax
+        r = torch.repeat_interleave(torch.arange(lng.shape[1], device=dev), per)
+        piece = torch.arange(r.shape[0], device=dev) - (torch.cumsum(per, 0) - per)[r]
+        lng = lng[:, r]
+        lng[2] += piece * kmax
+        line = torch.cat([line[:, ~long_], lng], 1)
+    line[3] = (line[3] - line[2]).clamp_max(kmax)  # piece length
+    return line
 
 
 def _runs(tri, rows, xmin, xmax, ok, width: int, big: float) -> torch.Tensor:

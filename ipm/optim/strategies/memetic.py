@@ -65,22 +65,22 @@ class MemeticSettings:
 
 
 
-@STRATEGIES.register("memetic")
-def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None) -> None:
-    """Genetic search with gradient-refined offspring; stops when the budget is spent."""
-    s = MemeticSettings() if settings is None else settings.strategy("memetic")
-    pop: list[tuple[torch.Tensor, dict, float]] = []
+Individual = tuple[torch.Tensor, dict, float]   # a refined point, its discrete values and its loss
+
+
+def _random_individual(space: Space, rng: np.random.Generator) -> tuple[torch.Tensor, dict]:
+    """A random point and discrete values (one draw of the whole genome); with an outline, on its sizes."""
     pose0 = space.starts[0][0]
+    g = rng.random(len(space.gen) + len(space.discrete))
+    if space.outline is not None:
+        # the outline was fitted first (part labels): new individuals share its sizes and differ in
+        # their discrete values, which the labels judge once the outline is refit for them
+        g[: len(space.gen)] = pose0.numpy()[space.gen]
+    return from_genome(space, g, pose0)
 
-    def random_individual() -> tuple[torch.Tensor, dict]:
-        g = rng.random(len(space.gen) + len(space.discrete))
-        if space.outline is not None:
-            # the outline was fitted first (part labels): new individuals share its sizes and differ in
-            # their discrete values, which the labels judge once the outline is refit for them
-            g[: len(space.gen)] = pose0.numpy()[space.gen]
-        return from_genome(space, g, pose0)
 
-    ev.phase = "memetic:init"
+def _first_candidates(space: Space, s: MemeticSettings, rng: np.random.Generator) -> tuple[list, int]:
+    """The first population's candidates (point, discrete values), and how many of them are kept starts."""
     # the kept starts (the best poses of the grid: a symmetric body seen from few views often leaves
     # several poses close, and the right one only wins after its shape is refined), then the presets
     # (diverse discrete values), then random individuals
@@ -89,77 +89,113 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
     if space.outline is None:
         candidates = list(space.starts[:n_starts]) + list(space.presets)
         while len(candidates) < s.population:
-            candidates.append(random_individual())
-    else:
-        # part labels: the outline is fitted (the first start) and what is searched is the discrete
-        # values, so the rest of the population spreads them evenly over their ranges (each value of
-        # each discrete parameter about equally often), on the fitted outline
-        n_starts = 1
-        candidates = list(space.starts[:1])
-        k = s.population - 1
-        strata = np.stack([(rng.permutation(k) + rng.random(k)) / k for _ in space.discrete], axis=1)
-        for z in strata:
-            x, _ = random_individual()
-            candidates.append((x, space.decode(z)))
+            candidates.append(_random_individual(space, rng))
+        return candidates, n_starts
+    # part labels: the outline is fitted (the first start) and what is searched is the discrete
+    # values, so the rest of the population spreads them evenly over their ranges (each value of
+    # each discrete parameter about equally often), on the fitted outline
+    candidates = list(space.starts[:1])
+    k = s.population - 1
+    strata = np.stack([(rng.permutation(k) + rng.random(k)) / k for _ in space.discrete], axis=1)
+    for z in strata:
+        x, _ = _random_individual(space, rng)
+        candidates.append((x, space.decode(z)))
+    return candidates, 1
+
+
+def _first_population(ev: Evaluator, space: Space, refine: Refine, s: MemeticSettings, candidates: list,
+                      n_starts: int) -> list[Individual]:
+    """The first population: the candidates posed (all but the kept starts) and refined."""
+    first = [(x if i < n_starts else outlined(space, best_pose(ev, space, x, d), d), d)
+             for i, (x, d) in enumerate(candidates[: s.population])]
+    if s.halving:
+        # the same budget as a refinement of refine_steps each, so that the best ends with about
+        # refine_steps x population / rungs steps instead of refine_steps
+        return halving(first, refine, max(1, round(s.refine_steps / halving_rungs(len(first)))))
+    pop = []
+    for x, d in first:
+        xr, loss = refine(x, d, s.refine_steps)
+        pop.append((xr, d, loss))
+    return pop
+
+
+def _neighbours(space: Space, refine: Refine, s: MemeticSettings, elite: Individual,
+                tried: set[tuple]) -> list[Individual]:
+    """The elite's +-1 neighbours in each discrete value not yet tried from its continuous values (a
+    neighbour is retried when the elite changes), refined; they join ``tried``."""
+    origin = tuple(np.round(elite[0].numpy(), 3))
+    out = []
+    for p in space.discrete:
+        for step in (-1, 1):
+            d = dict(elite[1])
+            d[p.name] = int(np.clip(d[p.name] + step, p.lo, p.hi))
+            key = tuple(sorted(d.items()))
+            if d == elite[1] or (key, origin) in tried:
+                continue
+            tried.add((key, origin))
+            xr, loss = refine(outlined(space, elite[0], d), d, s.refine_steps)
+            out.append((xr, d, loss))
+    return out
+
+
+def _children(space: Space, refine: Refine, rng: np.random.Generator, s: MemeticSettings,
+              pop: list[Individual]) -> list[Individual]:
+    """The next generation from ``pop`` (sorted, best first): the elite, refined again, then offspring of
+    tournament selection, one-point crossover and Gaussian mutation, refined."""
+    # elitism, and the elite keeps descending: without it no candidate gets more than one short
+    # refinement before the polish, which is too little where many parameters are determined
+    elite = pop[0]
+    if s.refine_elite:
+        xr, loss = refine(elite[0], elite[1], s.refine_steps)
+        elite = (xr, elite[1], loss) if loss <= elite[2] else elite
+    children = [elite]
+    while len(children) < s.population:
+        a, b = (min(rng.choice(len(pop), size=s.tournament, replace=False)) for _ in range(2))
+        ga, gb = genome(space, pop[a][0], pop[a][1]), genome(space, pop[b][0], pop[b][1])
+        cut = int(rng.integers(1, len(ga))) if len(ga) > 1 else 0
+        child = np.concatenate([ga[:cut], gb[cut:]])
+        mut = rng.random(len(child)) < s.p_mutation
+        child[mut] += rng.normal(0.0, s.sigma_mutation, int(mut.sum()))
+        child = np.clip(child, 0.0, 1.0)
+        x, d = from_genome(space, child, pop[a][0])  # pose and camera come from parent a
+        xr, loss = refine(x if d == pop[a][1] else outlined(space, x, d), d, s.refine_steps)
+        children.append((xr, d, loss))
+    return children
+
+
+def _restart(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, s: MemeticSettings,
+             pop: list[Individual]) -> list[Individual]:
+    """A new population: the best of ``pop`` and random individuals, posed and refined."""
+    pop.sort(key=lambda p: p[2])
+    out = [pop[0]]
+    for _ in range(s.population - 1):
+        x, d = _random_individual(space, rng)
+        x = outlined(space, best_pose(ev, space, x, d), d)
+        xr, loss = refine(x, d, s.refine_steps)
+        out.append((xr, d, loss))
+    return out
+
+
+@STRATEGIES.register("memetic")
+def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None) -> None:
+    """Genetic search with gradient-refined offspring; stops when the budget is spent."""
+    s = MemeticSettings() if settings is None else settings.strategy("memetic")
+    ev.phase = "memetic:init"
+    candidates, n_starts = _first_candidates(space, s, rng)
     tried: set[tuple] = set()
-
-    def key(d: dict) -> tuple:
-        return tuple(sorted(d.items()))
-
-    def neighbours(elite) -> list[tuple[torch.Tensor, dict, float]]:
-        # tried from this elite's continuous values: a neighbour is retried when the elite changes
-        origin = tuple(np.round(elite[0].numpy(), 3))
-        out = []
-        for p in space.discrete:
-            for step in (-1, 1):
-                d = dict(elite[1])
-                d[p.name] = int(np.clip(d[p.name] + step, p.lo, p.hi))
-                if d == elite[1] or (key(d), origin) in tried:
-                    continue
-                tried.add((key(d), origin))
-                xr, loss = refine(outlined(space, elite[0], d), d, s.refine_steps)
-                out.append((xr, d, loss))
-        return out
-
     try:
-        first = [(x if i < n_starts else outlined(space, best_pose(ev, space, x, d), d), d)
-                 for i, (x, d) in enumerate(candidates[: s.population])]
-        if s.halving:
-            # the same budget as a refinement of refine_steps each, so that the best ends with about
-            # refine_steps x population / rungs steps instead of refine_steps
-            pop = halving(first, refine, max(1, round(s.refine_steps / halving_rungs(len(first)))))
-        else:
-            for x, d in first:
-                xr, loss = refine(x, d, s.refine_steps)
-                pop.append((xr, d, loss))
+        pop = _first_population(ev, space, refine, s, candidates, n_starts)
         best = min(p[2] for p in pop)
         stall, generation = 0, 0
         while True:
             generation += 1
             ev.phase = f"memetic:gen{generation}"
             pop.sort(key=lambda p: p[2])
-            # elitism, and the elite keeps descending: without it no candidate gets more than one short
-            # refinement before the polish, which is too little where many parameters are determined
-            elite = pop[0]
-            if s.refine_elite:
-                xr, loss = refine(elite[0], elite[1], s.refine_steps)
-                elite = (xr, elite[1], loss) if loss <= elite[2] else elite
-            children = [elite]
-            while len(children) < s.population:
-                a, b = (min(rng.choice(len(pop), size=s.tournament, replace=False)) for _ in range(2))
-                ga, gb = genome(space, pop[a][0], pop[a][1]), genome(space, pop[b][0], pop[b][1])
-                cut = int(rng.integers(1, len(ga))) if len(ga) > 1 else 0
-                child = np.concatenate([ga[:cut], gb[cut:]])
-                mut = rng.random(len(child)) < s.p_mutation
-                child[mut] += rng.normal(0.0, s.sigma_mutation, int(mut.sum()))
-                child = np.clip(child, 0.0, 1.0)
-                x, d = from_genome(space, child, pop[a][0])  # pose and camera come from parent a
-                xr, loss = refine(x if d == pop[a][1] else outlined(space, x, d), d, s.refine_steps)
-                children.append((xr, d, loss))
+            children = _children(space, refine, rng, s, pop)
             if s.neighbours:
                 ev.phase = f"memetic:gen{generation}:neighbours"
                 children.sort(key=lambda p: p[2])
-                extra = neighbours(children[0])
+                extra = _neighbours(space, refine, s, children[0], tried)
                 children = sorted(children + extra, key=lambda p: p[2])[: s.population]
             pop = children
             gen_best = min(p[2] for p in pop)
@@ -170,15 +206,8 @@ def memetic(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generato
             if stall >= s.stall_generations or diversity < s.min_diversity:
                 log.info("memetic: restart at generation %d (stall %d, diversity %.3f)", generation, stall,
                          diversity)
-                pop.sort(key=lambda p: p[2])
-                keep = pop[0]
                 ev.phase = f"memetic:restart{generation}"
-                pop = [keep]
-                for _ in range(s.population - 1):
-                    x, d = random_individual()
-                    x = outlined(space, best_pose(ev, space, x, d), d)
-                    xr, loss = refine(x, d, s.refine_steps)
-                    pop.append((xr, d, loss))
+                pop = _restart(ev, space, refine, rng, s, pop)
                 stall = 0
     except BudgetExhausted:
         return

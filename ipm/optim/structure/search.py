@@ -175,6 +175,125 @@ def _interleave(lists: list[list[Proposal]], cap: int, shift: int = 0) -> list[P
     return out
 
 
+@dataclass
+class _Run:
+    """One search's running parts: the target, the settings, the budget, the records written and the
+    callbacks; it scores proposals, picks the beam and writes the checkpoint."""
+
+    samples: Samples
+    s: StructureSettings
+    budget: C.Budget
+    info: dict
+    records: int
+    t_before: float
+    record: Callable[[dict], None] | None
+    progress: Callable[[int, int, dict], None] | None
+    checkpoint: Callable[[dict], None] | None
+    t0: float = field(default_factory=time.perf_counter)
+
+    def tick(self) -> None:
+        """Report the evaluations used to ``progress``, if given."""
+        if self.progress is not None:
+            self.progress(self.budget.used, self.s.budget, self.info)
+
+    def elapsed(self) -> float:
+        """Seconds spent, every resumed run included."""
+        return self.t_before + time.perf_counter() - self.t0
+
+    def evaluate(self, p: Proposal, rnd: int, parent: int) -> Scored:
+        """Proposal ``p`` refined by the settings' steps and scored (and recorded, if ``record`` is given)."""
+        s = self.s
+        tree, loss = C.refine(p.tree, self.samples, s.steps, s.lr, self.budget, self.tick)
+        sc, q, _ = C.score(tree, self.samples, s.node_cost)
+        self.budget.take()
+        out = Scored(tree, sc, q, count_nodes(tree), loss, p.label)
+        if self.record is not None:
+            self.record({"i": self.records, "round": rnd, "parent": parent, "edit": p.label,
+                         "structure": structure(tree), "nodes": out.nodes, "iou": q, "score": sc, "loss": loss,
+                         "evaluations": self.budget.used, "t": round(self.elapsed(), 3), "tree": tree})
+        self.records += 1
+        return out
+
+    def select(self, pool: list[Scored]) -> list[Scored]:
+        """The ``beam`` best trees of ``pool`` of different structure, best first."""
+        kept, seen = [], set()
+        for c in sorted(pool, key=lambda c: c.score):  # stable: ties keep the earlier tree
+            key = structure(c.tree)
+            if key not in seen:
+                seen.add(key)
+                kept.append(c)
+            if len(kept) == self.s.beam:
+                break
+        return kept
+
+    def save(self, rnd: int, beam: list[Scored], best: Scored, stale: int, stopped: str | None) -> None:
+        """Hand the state after round ``rnd`` to ``checkpoint``, if given."""
+        if self.checkpoint is not None:
+            self.checkpoint({"round": rnd, "beam": [b.to_json() for b in beam], "best": best.to_json(),
+                             "stale": stale, "used": self.budget.used, "elapsed": self.elapsed(),
+                             "records": self.records, "stopped": stopped})
+
+
+def _first_beam(run: _Run, start: dict | None) -> list[Scored]:
+    """The first beam: the start trees (``start``, or :func:`starts`) refined and scored."""
+    s = run.s
+    first = [Proposal("start (given)", start)] if start is not None else starts(run.samples, s.kinds)
+    beam = run.select([run.evaluate(p, 0, -1) for p in first if run.budget.left > 0])
+    if not beam:
+        raise InputError(f"structure search: budget {s.budget} leaves no evaluation for the start after the "
+                         f"polish's {s.polish}")
+    return beam
+
+
+def _proposals(run: _Run, tree: dict, seen: set[str], min_cells: int, rnd: int) -> list[Proposal]:
+    """Round ``rnd``'s proposals for ``tree``: each edit's proposals within ``max_nodes`` and not in
+    ``seen`` (which they join), interleaved up to ``proposals``."""
+    s, samples = run.s, run.samples
+    missing, extra = C.residual(C.occupancy(tree, samples), samples)
+    ctx = Context(samples, tuple(C.regions(missing, samples, min_cells, s.regions)),
+                  tuple(C.regions(extra, samples, min_cells, s.regions)), s.kinds)
+    lists = []
+    for name in s.edits:
+        ok = []
+        for p in EDITS.get(name)(tree, ctx):
+            key = json.dumps(p.tree, sort_keys=True)
+            if count_nodes(p.tree) <= s.max_nodes and key not in seen:
+                seen.add(key)
+                ok.append(p)
+        lists.append(ok)
+    return _interleave(lists, s.proposals, rnd - 1)
+
+
+def _round(run: _Run, beam: list[Scored], rnd: int, min_cells: int) -> list[Scored]:
+    """The beam after round ``rnd``: the beam's trees, each refined again, and their proposals, scored."""
+    seen = {json.dumps(b.tree, sort_keys=True) for b in beam}
+    pool = list(beam)
+    for j, cand in enumerate(beam):
+        # the tree itself, refined as long as its proposals are: an edit must beat its parent given the
+        # same steps, not only the steps it got
+        for p in [Proposal("refine", cand.tree), *_proposals(run, cand.tree, seen, min_cells, rnd)]:
+            if run.budget.left <= 0:
+                break
+            pool.append(run.evaluate(p, rnd, j))
+    return run.select(pool)
+
+
+def _polish(run: _Run, best: Scored) -> tuple[Scored, C.Budget]:
+    """The best tree refined by the rest of the budget at a third of the step (kept if its score did not get
+    worse), and the whole search's budget."""
+    s, samples, progress, info = run.s, run.samples, run.progress, run.info
+    polish = C.Budget(s.budget, run.budget.used)
+    final = best
+    if polish.left > 0 and s.polish > 0:
+        tree, loss = C.refine(best.tree, samples, polish.left - 1, s.lr / 3, polish,
+                              lambda: progress(polish.used, s.budget, info) if progress else None)
+        sc, q, _ = C.score(tree, samples, s.node_cost)
+        polish.take()
+        if sc <= best.score:
+            final = Scored(tree, sc, q, count_nodes(tree), loss, "polish")
+    return final, polish
+
+
 def search(samples: Samples, settings: StructureSettings = StructureSettings(), *, start: dict | None = None,
            state: dict | None = None, checkpoint: Callable[[dict], None] | None = None,
            record: Callable[[dict], None] | None = None,
@@ -184,116 +303,41 @@ def search(samples: Samples, settings: StructureSettings = StructureSettings(), 
     (the trajectory); ``progress``: called with (evaluations, budget, info) after each step."""
     settings.check()
     s = settings
-    t0 = time.perf_counter()
-    t_before = float(state["elapsed"]) if state else 0.0
-    records = int(state["records"]) if state else 0
-    budget = C.Budget(s.budget - s.polish, int(state["used"]) if state else 0)
-    info: dict = {"round": int(state["round"]) if state else 0, "iou": math.nan}
-
-    def tick() -> None:
-        if progress is not None:
-            progress(budget.used, s.budget, info)
-
-    def elapsed() -> float:
-        return t_before + time.perf_counter() - t0
-
-    def evaluate(p: Proposal, rnd: int, parent: int) -> Scored:
-        nonlocal records
-        tree, loss = C.refine(p.tree, samples, s.steps, s.lr, budget, tick)
-        sc, q, _ = C.score(tree, samples, s.node_cost)
-        budget.take()
-        out = Scored(tree, sc, q, count_nodes(tree), loss, p.label)
-        if record is not None:
-            record({"i": records, "round": rnd, "parent": parent, "edit": p.label, "structure": structure(tree),
-                    "nodes": out.nodes, "iou": q, "score": sc, "loss": loss, "evaluations": budget.used,
-                    "t": round(elapsed(), 3), "tree": tree})
-        records += 1
-        return out
-
-    def select(pool: list[Scored]) -> list[Scored]:
-        kept, seen = [], set()
-        for c in sorted(pool, key=lambda c: c.score):  # stable: ties keep the earlier tree
-            key = structure(c.tree)
-            if key not in seen:
-                seen.add(key)
-                kept.append(c)
-            if len(kept) == s.beam:
-                break
-        return kept
-
+    run = _Run(samples, s, C.Budget(s.budget - s.polish, int(state["used"]) if state else 0),
+               {"round": int(state["round"]) if state else 0, "iou": math.nan},
+               int(state["records"]) if state else 0, float(state["elapsed"]) if state else 0.0,
+               record, progress, checkpoint)
     if state:
         beam = [Scored.from_json(d) for d in state["beam"]]
         best = Scored.from_json(state["best"])
         rnd, stale, stopped = int(state["round"]), int(state["stale"]), state.get("stopped")
     else:
-        first = [Proposal("start (given)", start)] if start is not None else starts(samples, s.kinds)
-        beam = select([evaluate(p, 0, -1) for p in first if budget.left > 0])
-        if not beam:
-            raise InputError(f"structure search: budget {s.budget} leaves no evaluation for the start after the "
-                             f"polish's {s.polish}")
+        beam = _first_beam(run, start)
         best, rnd, stale, stopped = beam[0], 0, 0, None
-
-    def save() -> None:
-        if checkpoint is not None:
-            checkpoint({"round": rnd, "beam": [b.to_json() for b in beam], "best": best.to_json(), "stale": stale,
-                        "used": budget.used, "elapsed": elapsed(), "records": records, "stopped": stopped})
-
-    if not state:
-        save()
+        run.save(rnd, beam, best, stale, stopped)
     min_cells = max(2, int(s.min_region * int(samples.grid_inside.sum())))
     while stopped is None:
         if rnd >= s.rounds:
             stopped = "rounds"
             break
-        if budget.left <= 0:
+        if run.budget.left <= 0:
             stopped = "budget"
             break
         rnd += 1
-        info["round"] = rnd
-        seen = {json.dumps(b.tree, sort_keys=True) for b in beam}
-        pool = list(beam)
-        for j, cand in enumerate(beam):
-            occ = C.occupancy(cand.tree, samples)
-            missing, extra = C.residual(occ, samples)
-            ctx = Context(samples, tuple(C.regions(missing, samples, min_cells, s.regions)),
-                          tuple(C.regions(extra, samples, min_cells, s.regions)), s.kinds)
-            lists = []
-            for name in s.edits:
-                ok = []
-                for p in EDITS.get(name)(cand.tree, ctx):
-                    key = json.dumps(p.tree, sort_keys=True)
-                    if count_nodes(p.tree) <= s.max_nodes and key not in seen:
-                        seen.add(key)
-                        ok.append(p)
-                lists.append(ok)
-            # the tree itself, refined as long as its proposals are: an edit must beat its parent given the
-            # same steps, not only the steps it got
-            for p in [Proposal("refine", cand.tree), *_interleave(lists, s.proposals, rnd - 1)]:
-                if budget.left <= 0:
-                    break
-                pool.append(evaluate(p, rnd, j))
-        beam = select(pool)
+        run.info["round"] = rnd
+        beam = _round(run, beam, rnd, min_cells)
         if beam[0].score < best.score - IMPROVEMENT:
             best, stale = beam[0], 0
         else:
             stale += 1
-        info["iou"] = best.iou
+        run.info["iou"] = best.iou
         log.info("structure round %d: best %s, %d nodes, IoU %.4f, score %.4f (%d evaluations)", rnd,
-                 structure(best.tree), best.nodes, best.iou, best.score, budget.used)
+                 structure(best.tree), best.nodes, best.iou, best.score, run.budget.used)
         if stale >= s.patience:
             stopped = "converged"
-        save()
-    # the polish: the rest of the budget, at a third of the step
-    polish = C.Budget(s.budget, budget.used)
-    final = best
-    if polish.left > 0 and s.polish > 0:
-        tree, loss = C.refine(best.tree, samples, polish.left - 1, s.lr / 3, polish,
-                              lambda: progress(polish.used, s.budget, info) if progress else None)
-        sc, q, _ = C.score(tree, samples, s.node_cost)
-        polish.take()
-        if sc <= best.score:
-            final = Scored(tree, sc, q, count_nodes(tree), loss, "polish")
-    return SearchResult(final.tree, final.score, final.iou, final.nodes, polish.used, elapsed(), rnd, stopped,
+        run.save(rnd, beam, best, stale, stopped)
+    final, polish = _polish(run, best)
+    return SearchResult(final.tree, final.score, final.iou, final.nodes, polish.used, run.elapsed(), rnd, stopped,
                         beam)
 
 
