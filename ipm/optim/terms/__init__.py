@@ -20,6 +20,7 @@ import torch
 
 from ipm.optim.phases import Phase
 from ipm.optim.shapes import Pose
+from ipm.optim.targets import MaskTarget
 from ipm.registry import Registry
 
 TERMS = Registry("loss term", packages=["ipm.optim.terms"])
@@ -111,6 +112,18 @@ class Evaluation:
             total = total + weight / K * loss
             self.extras[record].append(kept)
         return total
+
+
+class ViewCue:
+    """Base of the terms that compare one cue of a mask target view by view (depth, part labels, a grey
+    photo): such a term applies where the target carries its ``cue`` (an attribute of
+    :class:`~ipm.optim.targets.MaskTarget`)."""
+
+    cue = ""
+
+    def applies(self, prob) -> bool:
+        """Whether the target is a mask target that carries this term's cue."""
+        return isinstance(prob.target, MaskTarget) and getattr(prob.target, self.cue) is not None
 
 
 def active_terms(prob) -> list:

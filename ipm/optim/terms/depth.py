@@ -7,19 +7,16 @@ from __future__ import annotations
 import torch
 
 from ipm.losses import cues as C
-from ipm.optim.targets import MaskTarget
-from ipm.optim.terms import TERMS, Evaluation
+from ipm.optim.terms import TERMS, Evaluation, ViewCue
 
 
 @TERMS.register()
-class Depth:
+class Depth(ViewCue):
     """The rendered depth against the target's depth maps."""
 
     name = "depth"
+    cue = "depth"
     order = 30
-
-    def applies(self, prob) -> bool:
-        return isinstance(prob.target, MaskTarget) and prob.target.depth is not None
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         from ipm.render import deferred as R

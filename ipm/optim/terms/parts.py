@@ -10,8 +10,7 @@ from __future__ import annotations
 import torch
 
 from ipm.losses import cues as C
-from ipm.optim.targets import MaskTarget
-from ipm.optim.terms import TERMS, Evaluation
+from ipm.optim.terms import TERMS, Evaluation, ViewCue
 from ipm.types import Camera, TriMesh
 
 # soft-rasterizer blur (px^2) of the part masks compared with part labels (soft_parts)
@@ -44,14 +43,12 @@ def soft_parts(mesh: TriMesh, rast, cam: Camera, index: list[int]) -> torch.Tens
 
 
 @TERMS.register()
-class Parts:
+class Parts(ViewCue):
     """Soft masks of the named parts' visible faces against the target's part labels."""
 
     name = "parts"
+    cue = "parts"
     order = 31
-
-    def applies(self, prob) -> bool:
-        return isinstance(prob.target, MaskTarget) and prob.target.parts is not None
 
     def __call__(self, ev: Evaluation) -> torch.Tensor:
         from ipm.render import deferred as R
