@@ -45,3 +45,15 @@ def test_library_code_never_prints():
             if isinstance(node, ast.Call) and getattr(node.func, "id", None) == "print":
                 bad.append(f"{path.relative_to(PKG)}:{node.lineno}")
     assert not bad, bad
+
+
+def test_functions_are_short_documented_and_blind_to_the_generators_kind():
+    """Issue #33's numbers, held: no function over 80 lines, at least 90 % of the public functions and methods
+    with a docstring, no comparison of a generator's kind outside the shape adapters and the generators
+    (``python -m benchmarks.code_health`` prints them)."""
+    from benchmarks import code_health as H
+
+    m = H.measure()
+    assert len(m["long"]) <= H.MAX_LONG, m["long"]
+    assert m["documented"] / m["public"] >= H.MIN_DOCUMENTED, m["missing"]
+    assert m["kind_branches"] == []
