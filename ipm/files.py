@@ -120,6 +120,63 @@ def read_npy(path: str | Path, what: str = "array file"):
     return arr
 
 
+def read_npz(path: str | Path, what: str, expected: str, max_bytes: int) -> dict:
+    """The arrays of an ``.npz`` of plain arrays (no pickles) as ``{name: np.ndarray}``, read whole.
+
+    :class:`InputError` naming the file and saying what was ``expected`` for a file that is missing, not a zip,
+    a single ``.npy`` array, holds pickled objects, or whose arrays declare more than ``max_bytes`` in their
+    headers (a small compressed file can declare gigabytes: checked before anything is read)."""
+    import numpy as np
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{what}: expected an existing .npz file, got {path}")
+    with open(path, "rb") as f:
+        magic = f.read(6)
+    if not (magic.startswith(b"PK") or magic == b"\x93NUMPY"):
+        raise InputError(f"{what} {path}: expected {expected}, got a file that is no .npz (not a zip)")
+    total = _npz_declared_bytes(path)
+    if total > max_bytes:
+        raise InputError(f"{what} {path}: expected arrays of at most {max_bytes / 2**30:.3g} GB in all (the limit), "
+                         f"got arrays declaring {total / 2**30:.1f} GB")
+    try:
+        z = np.load(path, allow_pickle=False, mmap_mode="r")  # a .npy is mapped, not read
+        if not isinstance(z, np.lib.npyio.NpzFile):
+            raise InputError(f"{what} {path}: expected {expected}, got a single array ({z.dtype} {tuple(z.shape)}: "
+                             "a .npy file)")
+        with z:
+            return {k: z[k] for k in z.files}
+    except (ValueError, OSError, EOFError) as e:  # pickled objects, not a zip, truncated
+        if isinstance(e, InputError):
+            raise
+        raise InputError(f"{what} {path}: expected an .npz of plain arrays, got an error: "
+                         f"{str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+
+
+def _npz_declared_bytes(path: Path) -> int:
+    """The bytes the arrays of the ``.npz`` at ``path`` declare in their headers (0 for a file that is not a zip of
+    arrays: :func:`numpy.load`'s error then names the problem)."""
+    import zipfile
+
+    import numpy as np
+
+    total = 0
+    try:
+        with zipfile.ZipFile(path) as zf:
+            for info in zf.infolist():
+                if not info.filename.endswith(".npy"):
+                    continue
+                with zf.open(info) as f:
+                    version = np.lib.format.read_magic(f)
+                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                                   else np.lib.format.read_array_header_2_0)
+                    shape, _, dtype = read_header(f)
+                total += int(np.prod(shape, dtype=object)) * dtype.itemsize
+    except (zipfile.BadZipFile, ValueError, OSError, EOFError, TypeError):
+        return 0
+    return total
+
+
 def json_nesting(text: str) -> int:
     """How deeply objects and arrays nest in JSON ``text`` (strings skipped), without parsing it."""
     depth = deepest = 0

@@ -152,26 +152,10 @@ def load_weights(path: str | Path) -> tuple[NeuralSubdivision, dict]:
     """The network in a weights file, and its other arrays; :class:`InputError` for a file that is not
     one (unreadable, a single ``.npy`` array, pickled objects, arrays declaring more than
     :data:`MAX_WEIGHTS_BYTES`, a missing or malformed config, a missing or misshapen parameter)."""
+    from ipm.files import read_npz
+
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"weights file: expected an existing .npz file, got {path}")
-    with open(path, "rb") as f:
-        magic = f.read(6)
-    if not (magic.startswith(b"PK") or magic == b"\x93NUMPY"):
-        raise InputError(f"weights file {path}: expected {WEIGHTS_FILE}, got a file that is no .npz (not a zip)")
-    _check_sizes(path)
-    try:
-        z = np.load(path, allow_pickle=False, mmap_mode="r")  # a .npy is mapped, not read
-        if not isinstance(z, np.lib.npyio.NpzFile):
-            raise InputError(f"weights file {path}: expected {WEIGHTS_FILE}, got a single array "
-                             f"({z.dtype} {tuple(z.shape)}: a .npy file)")
-        with z:
-            arrays = {k: z[k] for k in z.files}
-    except (ValueError, OSError, EOFError) as e:  # pickled objects, not a zip, truncated
-        if isinstance(e, InputError):
-            raise
-        raise InputError(f"weights file {path}: expected an .npz of plain arrays, got an error: "
-                         f"{str(e).splitlines()[0] if str(e) else type(e).__name__}") from None
+    arrays = read_npz(path, "weights file", WEIGHTS_FILE, MAX_WEIGHTS_BYTES)
     try:
         text = str(arrays.pop("config"))
         if len(text) > 1000:
@@ -200,27 +184,3 @@ def load_weights(path: str | Path) -> tuple[NeuralSubdivision, dict]:
     net.load_state_dict(state)
     return net, {k: v for k, v in arrays.items() if not k.startswith("net.")}
 
-
-def _check_sizes(path: Path) -> None:
-    """:class:`InputError` if the arrays of the ``.npz`` at ``path`` declare more than
-    :data:`MAX_WEIGHTS_BYTES` in their headers (a small compressed file can declare gigabytes); other
-    files pass on to :func:`numpy.load`, which says what they are."""
-    import zipfile
-
-    try:
-        with zipfile.ZipFile(path) as zf:
-            total = 0
-            for info in zf.infolist():
-                if not info.filename.endswith(".npy"):
-                    continue
-                with zf.open(info) as f:
-                    version = np.lib.format.read_magic(f)
-                    read_header = (np.lib.format.read_array_header_1_0 if version == (1, 0)
-                                   else np.lib.format.read_array_header_2_0)
-                    shape, _, dtype = read_header(f)
-                total += int(np.prod(shape, dtype=object)) * dtype.itemsize
-    except (zipfile.BadZipFile, ValueError, OSError, EOFError, TypeError):
-        return  # not a zip of arrays: np.load's error names the problem
-    if total > MAX_WEIGHTS_BYTES:
-        raise InputError(f"weights file {path}: expected arrays of at most {MAX_WEIGHTS_BYTES // 2**30} GB in all "
-                         f"(the limit), got arrays declaring {total / 2**30:.1f} GB")
