@@ -44,9 +44,9 @@ def _settings_from_json(d: dict):
     if not isinstance(d, dict):
         raise InputError(f"settings: expected an object, got {type(d).__name__}")
     known = {f.name for f in fields(FitSettings)}
-    # runs recorded before the description length and the anchor replay without them; before the strategies
-    # owned their settings, memetic's and nlopt's were fields of their own
-    d = {"part_cost": 0.0, "anchor": 0.0, **d}
+    # runs recorded before the description length, the anchor and the learned proposals replay without them;
+    # before the strategies owned their settings, memetic's and nlopt's were fields of their own
+    d = {"part_cost": 0.0, "anchor": 0.0, "init": "presets", **d}
     old = {k: d.pop(k) for k in ("memetic", "nlopt") if k in d}
     if old:
         d["search"] = {**old, **(d.get("search") or {})}
@@ -86,7 +86,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
     from ipm.io.fit_targets import TargetFiles, load_target
     from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, final_files, first_run, write_json
     from ipm.optim.evaluator import ReplayMismatch
-    from ipm.optim.fit import FitSettings, hard_scores, run_fit
+    from ipm.optim.fit import hard_scores, run_fit
     from ipm.optim.problem import Problem
 
     replay: list[dict] = []
@@ -104,9 +104,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
                             depth=_absolute(depth), depth_scale=depth_scale, parts=_absolute(parts),
                             image=_absolute(image), mask=_absolute(mask), intrinsics=_absolute(intrinsics),
                             box=None if box is None else tuple(int(v) for v in box), size=photo_size, ground=ground)
-        if files.image is not None and settings.get("camera", "known") != "fit":
-            settings = {**settings, "camera": "fit"}  # a photo has no cameras.json
-        cfg = FitSettings(**settings)
+        cfg = _new_settings(settings, files)
     cfg.check()
     target, photo = load_target(files, camera=cfg.camera, device=device)
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written
@@ -138,6 +136,18 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
         else:
             pose = prob.pose_json(best["x"].to(torch.float64), best["discrete"], symmetry=True, mesh=mesh)
     return replace(result, scores=scores, pose=pose, run_dir=None if run_dir is None else str(run_dir), shape=mesh)
+
+
+def _new_settings(settings: dict, files):
+    """The FitSettings of a new run: a proposals file kept absolute (a resume from elsewhere finds it), and a
+    photo's camera fitted (a photo has no cameras.json)."""
+    from ipm.optim.fit import FitSettings
+
+    if settings.get("proposals") is not None:
+        settings = {**settings, "proposals": _absolute(settings["proposals"])}
+    if files.image is not None and settings.get("camera", "known") != "fit":
+        settings = {**settings, "camera": "fit"}
+    return FitSettings(**settings)
 
 
 def _resumed(run_dir: Path | None, generator, library: list[str] | None):
@@ -289,7 +299,7 @@ def save_run(run_dir: Path, prob, best: dict, result: FitResult, settings,
         "generator": prob.gen.name, "loss": result.loss, "evaluations": result.evaluations,
         "wall_time_s": round(result.wall_time_s, 3), "seed": settings.seed, "settings": settings.to_json(),
         "scores": scores, "params": result.params, "pose": pose,
-        "discrete": best["discrete"], "tied": list(result.tied),
+        "discrete": best["discrete"], "tied": list(result.tied), "start": result.start,
         "files": files,
         "versions": {"ipm": ipm.__version__, "torch": torch.__version__, "numpy": np.__version__},
     }

@@ -40,6 +40,8 @@ BAD = {
     "image_weight": ("image_weight", [-2.0, INF, False]),
     "part_cost": ("part_cost", [-0.01, INF, NAN, True]),
     "anchor": ("anchor", [-0.01, INF, NAN, "strong", True]),
+    "init": ("init", ["sometimes", 1, None, True]),
+    "proposals": ("proposals", [3, True, ["w.npz"]]),
     "subdivide": ("subdivision", ["butterfly", 1, True]),
     "subdivide_levels": ("subdivision levels", [0, 4, 1.5, True, "2"]),
     "search": ("search", ["memetic", 3, [1, 2]]),

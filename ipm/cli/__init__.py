@@ -23,7 +23,7 @@ import typer
 
 # Command modules, in the order of `ipm --help`.
 COMMANDS = ["list_cmd", "generate", "jacobian", "render", "mask", "fit", "convert", "subdivide", "train_subdivision",
-            "vectorize", "bench", "demo"]
+            "train_proposals", "vectorize", "bench", "demo"]
 
 app = typer.Typer(
     name="ipm",

@@ -54,6 +54,12 @@ ImageWeightOpt = Annotated[float, typer.Option("--image-weight", help="weight of
 CameraOpt = Annotated[str, typer.Option(help="known (cameras.json) or fit (recover elevation, "
     "distance, FOV)")]
 DiscreteOpt = Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")]
+InitOpt = Annotated[str, typer.Option(help=(
+    "where the search starts: presets (the pose grid and the generator's presets), learned (a trained network's "
+    "proposals from the first view's mask: ipm list proposals) or both (the proposals beside the presets, where "
+    "weights exist)"))]
+ProposalsOpt = Annotated[Path | None, typer.Option(help=(
+    "proposal weights (ipm train-proposals); default: those shipped for the generator"))]
 BudgetOpt = Annotated[int | None, typer.Option(help=(
     "function evaluations (one render + loss each; --structure search: one Adam step or score of a "
     "tree) (default 1500; --structure search: 16000)"))]
@@ -122,6 +128,8 @@ def register(app: typer.Typer) -> None:
         image_weight: ImageWeightOpt = 1.0,
         camera: CameraOpt = "known",
         discrete: DiscreteOpt = "memetic",
+        init: InitOpt = "both",
+        proposals: ProposalsOpt = None,
         budget: BudgetOpt = None,
         seed: SeedOpt = 0,
         preset: PresetOpt = None,
@@ -272,6 +280,7 @@ def _fit_parametric(o: SimpleNamespace) -> None:
                      run_dir=o.resume or o.output,
                      resume=o.resume is not None, library=[str(p) for p in o.library] if o.library else None,
                      progress=progress, device=dev, budget=o.budget, seed=o.seed, discrete=o.discrete,
+                     init=o.init, proposals=None if o.proposals is None else str(o.proposals),
                      camera=o.camera,
                      loss=o.loss, local=o.local, lr=o.lr, preset=o.preset, fix=fixed, ranges=ranges,
                      pose=not o.no_pose,

@@ -27,6 +27,7 @@ REGISTRIES = {
 HELP = {"generators": "procedural generators: kind, parameter counts, presets",
         "nodes": "SDF node types: dimension, children, parameters",
         "presets": "named starting points of every generator and tree",
+        "proposals": "shipped proposal networks (ipm fit --init): generator, training command and data",
         **{k: v[2] for k, v in REGISTRIES.items()}}
 WHAT = tuple(HELP)
 
@@ -90,6 +91,23 @@ def _presets() -> list[dict]:
     return out
 
 
+def _proposals() -> list[dict]:
+    import json
+
+    from ipm.proposals import shipped
+    from ipm.proposals.net import load_weights
+
+    out = []
+    for path in shipped().values():
+        net, extra = load_weights(path)
+        s = json.loads(str(extra["settings"])) if "settings" in extra else {}
+        out.append({"generator": net.config.generator, "file": f"ipm/proposals/weights/{path.name}",
+                    "weights": sum(p.numel() for p in net.parameters()), "samples": s.get("samples"),
+                    "steps": s.get("steps"), "command": f"ipm train-proposals {net.config.generator} -o {path.name} "
+                    f"--samples {s.get('samples')} --steps {s.get('steps')} --seed {s.get('seed')}"})
+    return out
+
+
 def register(app: typer.Typer) -> None:
     @app.command("list")
     def list_cmd(
@@ -108,7 +126,7 @@ def register(app: typer.Typer) -> None:
             from ipm.sdf.complex import load_library
 
             load_library([str(p) for p in library])
-        special = {"generators": _generators, "nodes": _nodes, "presets": _presets}
+        special = {"generators": _generators, "nodes": _nodes, "presets": _presets, "proposals": _proposals}
         rows = special[what]() if what in special else _registry(what)
         if json_out:
             emit(rows, True)

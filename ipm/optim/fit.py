@@ -9,6 +9,7 @@ the names below that other modules define are re-exported for callers of ``ipm.o
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Callable
 
@@ -21,7 +22,16 @@ from ipm.optim import phases
 from ipm.optim.encoding import DIST, ELEV, FOV, LOG2S_RANGE, T_RANGE, YAW_RANGE
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
 from ipm.optim.phases import OUTLINE, OUTLINE_SHARE, OUTLINE_STEPS, SEARCH
-from ipm.optim.pose import initial_starts, pose_grid, preset_starts, spread_starts, yaw_free, yaw_turns
+from ipm.optim.pose import (
+    initial_starts,
+    learned_starts,
+    pose_grid,
+    preset_starts,
+    spread_starts,
+    with_proposals,
+    yaw_free,
+    yaw_turns,
+)
 from ipm.optim.problem import Problem
 from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, FitSettings
 from ipm.optim.shapes import POLISH_SIGMA_FACTOR
@@ -74,6 +84,24 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
     space.outline = outline
 
 
+def learned_proposals(prob: Problem, settings: FitSettings) -> list:
+    """The proposals of the generator's network for the first view's mask (:mod:`ipm.proposals`), where
+    ``settings.init`` asks for them and the target is masks; none for ``init = "presets"``, for ``"both"``
+    without weights; ``InputError`` for ``"learned"`` without weights."""
+    from ipm.errors import InputError
+    from ipm.proposals import load_proposer
+
+    if settings.init == "presets" or not isinstance(prob.target, MaskTarget):
+        return []
+    proposer = load_proposer(prob.gen, settings.proposals)
+    if proposer is None:
+        if settings.init == "learned":
+            raise InputError(f"init learned: expected proposal weights for {prob.gen.name}, got none; train them "
+                             f"with ipm train-proposals {prob.gen.name} -o W.npz and pass --proposals W.npz")
+        return []
+    return proposer.propose(prob.target.masks[0], prob.target.cameras[0])
+
+
 def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float:
     """The Adam step: ``settings.lr`` if given, else the generator's ``mask_lr`` for silhouettes and
     :data:`MESH_LR` for mesh targets."""
@@ -95,13 +123,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     nlopt.srand(settings.seed)  # GN_CRS2_LM, GN_ESCH and GN_ISRES are stochastic
 
     ev = Evaluator(prob.objective, settings.budget, sink=sink, replay=replay, progress=progress)
-    try:
-        # presets are ranked for strategies that seed a population with them (memetic)
-        rank = bool(getattr(STRATEGIES[settings.discrete], "uses_presets", False)) and bool(prob.searched)
-        starts, presets, free_yaw = initial_starts(prob, ev, rank=rank)
-    except BudgetExhausted:
-        starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
-        presets = preset_starts(prob, starts[0][0])
+    starts, presets, free_yaw, start_info = _starts(prob, ev, settings)
     searched = {p.name for p in prob.searched}
 
     def pose_search(x: torch.Tensor, d: dict) -> torch.Tensor:
@@ -162,7 +184,33 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
             except BudgetExhausted:
                 break
     with ev.running(polishing):
-        return _finish(prob, ev, gen, starts, settings, n_tie, lr)
+        result, prob, best = _finish(prob, ev, gen, starts, settings, n_tie, lr)
+    return dataclasses.replace(result, start=start_info), prob, best
+
+
+def _starts(prob: Problem, ev: Evaluator, settings: FitSettings) -> tuple[list, list, bool, dict]:
+    """Where the search starts: (starts, presets, whether the yaw is free, what result.json says of it), from the
+    pose grid and the presets, the learned proposals, or both (``settings.init``)."""
+    proposals = learned_proposals(prob, settings)
+    info: dict = {"init": settings.init if proposals else "presets"}
+    if proposals:
+        info["proposals"] = [{"discrete": {k: v for k, v in p.values.items() if k in prob.d0},
+                              "probability": round(p.probability, 4), "yaw_deg": round(p.yaw_deg, 1)}
+                             for p in proposals]
+    try:
+        # presets are ranked for strategies that seed a population with them (memetic)
+        rank = bool(getattr(STRATEGIES[settings.discrete], "uses_presets", False)) and bool(prob.searched)
+        if proposals and settings.init == "learned":
+            starts, presets, free_yaw = learned_starts(prob, ev, proposals)
+        else:
+            starts, presets, free_yaw = initial_starts(prob, ev, rank=rank)
+            if proposals:
+                starts, presets, looked = with_proposals(prob, ev, starts, presets, proposals)
+                info.update(looked)
+    except BudgetExhausted:
+        starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
+        presets = preset_starts(prob, starts[0][0])
+    return starts, presets, free_yaw, info
 
 
 def _finish(prob: Problem, ev: Evaluator, gen, starts, settings: FitSettings, n_tie: int, lr: float

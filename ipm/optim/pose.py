@@ -23,6 +23,27 @@ TURNS = tuple(15.0 * k for k in range(24))
 CAMERA_GRID = tuple((e, 3.2, f) for e in (5.0, 25.0, 45.0) for f in (25.0, 40.0, 60.0))
 
 
+def proposed(prob: Problem, proposals: list, x_pose: torch.Tensor) -> list[tuple[torch.Tensor, dict]]:
+    """Learned proposals (:class:`ipm.proposals.Proposal`) as ``(x, discrete)``, each posed like ``x_pose`` but
+    turned to its own yaw (where the pose is searched); values the fit holds (``--fix``, discrete parameters it
+    does not search) stay at the start's, searched ones within their ranges."""
+    from ipm.optim.encoding import encode_yaw
+
+    searched = {p.name for p in prob.searched}
+    start = prob.gen.values(prob.s.preset, prob.s.fix)
+    out = []
+    for p in proposals:
+        vals = {**start, **{k: v for k, v in p.values.items() if k not in prob.s.fix}}
+        th, dd = prob.gen.split(vals, torch.float64)
+        dd = prob.clamp_discrete({k: (v if k in searched else prob.d0[k]) for k, v in dd.items()})
+        th = prob.carry(th, dd, inverse=True)
+        x = torch.cat([prob.encode_params(th), x_pose[prob.n:].double()])
+        if prob.s.pose:
+            x[prob.n + 3] = encode_yaw(p.yaw_deg)
+        out.append((x.clamp(0, 1), dd))
+    return out
+
+
 def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = False):
     """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale and translation set
     from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best
@@ -35,6 +56,38 @@ def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = Fal
     return starts, rank_presets(prob, ev, presets) if rank else presets, yaw_free(graded)
 
 
+def learned_starts(prob: Problem, ev: Evaluator, proposals: list, keep: int = 4):
+    """``init = "learned"``: :func:`initial_starts` with the network's proposals in place of the start and the
+    presets: the pose grid runs on the most probable proposal's values; the others, posed like its best pose at
+    their own yaws, are looked at (:func:`looks`) and come best first as the presets."""
+    ev.phase = "init:learned"
+    first = proposed(prob, proposals[:1], prob.x0())[0]
+    graded = pose_grid(prob, ev, first[1], first[0], keep=keep)
+    starts = [(e[1], first[1]) for e in graded] or [first]
+    rest = proposed(prob, proposals[1:], starts[0][0])
+    ev.phase = "init:learned"
+    scored = looks(prob, ev, rest) if rest and isinstance(prob.target, MaskTarget) else []
+    presets = [(x, rest[i][1]) for _, i, x in sorted(scored, key=lambda e: (e[0], e[1]))] or rest
+    return starts, presets, yaw_free(graded)
+
+
+def with_proposals(prob: Problem, ev: Evaluator, starts: list, presets: list, proposals: list
+                   ) -> tuple[list, list, dict]:
+    """``init = "both"``: the proposals posed like the best start, each at its own yaw, looked at (:func:`looks`);
+    the best of them becomes the first start when it looks better than every start and preset so far, and all of
+    them go before the presets. Returns (starts, presets, what the trajectory should say of them)."""
+    before = ev.best.loss
+    entries = proposed(prob, proposals, starts[0][0])
+    ev.phase = "init:learned"
+    scored = sorted(looks(prob, ev, entries), key=lambda e: (e[0], e[1]))
+    ranked = [(x, entries[i][1]) for _, i, x in scored]
+    first = bool(scored) and scored[0][0] < before
+    if first:
+        starts = [ranked[0], *starts]
+    info = {"looks": [float(loss) for loss, _, _ in sorted(scored, key=lambda e: e[1])], "first_start": first}
+    return starts, ranked + presets, info
+
+
 def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor, dict]]
                  ) -> list[tuple[torch.Tensor, dict]]:
     """``presets`` (x, discrete) best first by one cheap look each: rendered where the best start is, then
@@ -44,35 +97,44 @@ def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor,
     fitted from the ``mug`` preset: ``bottle`` first, loss 0.064, the others 0.24 to 0.68; alphabetically
     the population of 8 never reached ``pitcher``, ``plate`` or ``vase``). Silhouette targets only; the
     order is kept for others and when the budget ends."""
-    from ipm.optim.encoding import encode_log2_scale, encode_translation
     from ipm.optim.evaluator import BudgetExhausted
 
     if not isinstance(prob.target, MaskTarget) or not prob.s.pose or len(presets) < 2:
         return presets
     ev.phase = "init:presets"
-    tgt = prob.target.masks.sum((-2, -1))
-    scored = []
     try:
-        for i, (x, d) in enumerate(presets):
-            loss, _ = ev(x, d, grad=False)
-            area, cen = ev.last.get("area"), ev.last.get("centroid")
-            best = (loss, i, x)
-            if area is not None and min(area) > 0 and cen is not None:
-                _, t, _, scale, _ = prob.decode(x.detach().double())
-                k = float(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)))
-                dt = translation_from_centroids(prob.cameras(x), cen, centroids(prob.target.masks))
-                xp = x.detach().double().clone()
-                xp[prob.n:prob.n + 3] = encode_translation(t + torch.tensor(dt, dtype=torch.float64))
-                xp[prob.n + 4] = encode_log2_scale(torch.log2(scale * k))
-                xp = xp.clamp(0, 1)
-                lp, _ = ev(xp, d, grad=False)
-                if lp < loss:
-                    best = (lp, i, xp)
-            scored.append(best)
+        scored = looks(prob, ev, presets)
     except BudgetExhausted:
         return presets
     return [(x, presets[i][1]) for _, i, x in sorted(scored, key=lambda e: (e[0], e[1]))]
 
+
+def looks(prob: Problem, ev: Evaluator, entries: list[tuple[torch.Tensor, dict]]
+          ) -> list[tuple[float, int, torch.Tensor]]:
+    """One cheap look at each of ``entries`` (x, discrete): its loss where it stands, and, rescaled and moved so
+    that its silhouettes' areas and centroids match the target's, once more; ``(loss, index, x)`` of the better
+    of the two, in the entries' order. Raises ``BudgetExhausted`` when the budget ends."""
+    from ipm.optim.encoding import encode_log2_scale, encode_translation
+
+    tgt = prob.target.masks.sum((-2, -1))
+    scored = []
+    for i, (x, d) in enumerate(entries):
+        loss, _ = ev(x, d, grad=False)
+        area, cen = ev.last.get("area"), ev.last.get("centroid")
+        best = (loss, i, x)
+        if area is not None and min(area) > 0 and cen is not None:
+            _, t, _, scale, _ = prob.decode(x.detach().double())
+            k = float(np.sqrt(float(tgt.mean()) / max(float(np.mean(area)), 1e-9)))
+            dt = translation_from_centroids(prob.cameras(x), cen, centroids(prob.target.masks))
+            xp = x.detach().double().clone()
+            xp[prob.n:prob.n + 3] = encode_translation(t + torch.tensor(dt, dtype=torch.float64))
+            xp[prob.n + 4] = encode_log2_scale(torch.log2(scale * k))
+            xp = xp.clamp(0, 1)
+            lp, _ = ev(xp, d, grad=False)
+            if lp < loss:
+                best = (lp, i, xp)
+        scored.append(best)
+    return scored
 
 def pose_grid(prob: Problem, ev: Evaluator, d: dict, x: torch.Tensor | None = None, keep: int = 4
               ) -> list[tuple]:

@@ -27,6 +27,10 @@ PART_COST = 0.0
 ANCHOR = 0.02
 CameraMode = Literal["known", "fit"]
 CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
+# where a fit starts (ipm.optim.pose): the pose grid and the presets, a trained network's proposals
+# (ipm.proposals), or both (the proposals beside the presets, where weights exist)
+InitMode = Literal["both", "learned", "presets"]
+INIT_MODES: tuple[str, ...] = get_args(InitMode)
 
 
 @dataclass
@@ -48,6 +52,9 @@ class FitSettings:
     # soft rasterizer blur; 0 = the renderer's default for the image size
     sigma: Annotated[float, Meta(ge=0, extra={"noun": "a blur"})] = 0.0
     preset: str | None = None        # start from this preset (default: the generator's defaults)
+    init: InitMode = "both"
+    # a proposal network's weights file (ipm train-proposals); None: the weights shipped for the generator
+    proposals: str | None = None
     # continuous parameters to fit (default: all)
     free: Annotated[list[str], Meta(extra={"noun": "a list of parameter names"})] | None = None
     # parameters held at given values

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from ipm.checkpoint import load_state
 from ipm.errors import InputError
 from ipm.subdiv.halfflap import flaps, next_level
 
@@ -170,17 +171,6 @@ def load_weights(path: str | Path) -> tuple[NeuralSubdivision, dict]:
         raise InputError(f"weights file {path}: expected a config entry (JSON) with features in 1..1024 and "
                          "hidden in 1..4096") from None
     net = NeuralSubdivision(config)
-    state = net.state_dict()
-    for k, v in state.items():
-        a = arrays.get(f"net.{k}")
-        if a is None:
-            raise InputError(f"weights file {path}: parameter {k} is missing")
-        if tuple(a.shape) != tuple(v.shape) or a.dtype.kind != "f":
-            raise InputError(f"weights file {path}: parameter {k}: expected a float array of shape "
-                             f"{tuple(v.shape)}, got {a.dtype} {tuple(a.shape)}")
-        if not np.isfinite(a).all():
-            raise InputError(f"weights file {path}: parameter {k} holds NaN or infinite values")
-        state[k] = torch.as_tensor(a, dtype=v.dtype)
-    net.load_state_dict(state)
+    load_state(net, arrays, f"weights file {path}")
     return net, {k: v for k, v in arrays.items() if not k.startswith("net.")}
 

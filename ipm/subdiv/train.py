@@ -7,7 +7,6 @@ and the step, so a resumed run continues exactly where it stopped."""
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ipm.checkpoint import cosine_lr, load_adam, same_settings
 from ipm.errors import InputError
 from ipm.subdiv.neural import NetConfig, NeuralSubdivision, load_weights, save_weights
 from ipm.subdiv.pairs import Pair, dish_pair, random_dishes
@@ -144,18 +144,15 @@ def _train(s: TrainSettings, checkpoint, every: int, resume: bool, progress) -> 
         net, extra = load_weights(checkpoint)
         saved = json_settings(extra)
         now = json.loads(json.dumps(asdict(s)))   # tuples as lists, as the checkpoint holds them
-        if saved != now:
-            diff = sorted(k for k in saved.keys() | now.keys() if saved.get(k) != now.get(k))
-            raise InputError(f"resume: the checkpoint was trained with other settings ({', '.join(diff)}); "
-                             "start a new run instead")
+        same_settings(saved, now)
         opt = torch.optim.Adam(net.parameters(), lr=s.lr)
-        _load_adam(opt, net, extra)
+        load_adam(opt, net, extra)
         start = int(extra["step"])
     pairs = training_pairs(s)
     order = np.random.default_rng(s.seed).permutation(np.arange(s.steps) % len(pairs))
     for step in range(start, s.steps):
-        for g in opt.param_groups:   # cosine from lr to lr / 20
-            g["lr"] = s.lr * (0.05 + 0.475 * (1 + math.cos(math.pi * step / max(s.steps - 1, 1))))
+        for g in opt.param_groups:
+            g["lr"] = cosine_lr(s.lr, step, s.steps)
         opt.zero_grad()
         loss = pair_loss(net, pairs[order[step]])
         loss.backward()
@@ -178,23 +175,10 @@ def json_settings(extra: dict) -> dict:
 def save_checkpoint(net: NeuralSubdivision, opt: torch.optim.Adam, s: TrainSettings, step: int,
                     path: str | Path) -> Path:
     """Write the weights, ``step``, the settings as JSON and Adam's moments to ``path`` (``.npz``, atomically)."""
-    extra: dict = {"step": np.array(step), "settings": np.array(json.dumps(asdict(s)))}
-    names = dict(net.named_parameters())
-    for k, p in names.items():
-        st = opt.state.get(p)
-        if st:
-            extra[f"adam.m.{k}"] = st["exp_avg"].detach().numpy()
-            extra[f"adam.v.{k}"] = st["exp_avg_sq"].detach().numpy()
-            extra[f"adam.t.{k}"] = np.array(float(st["step"]))
+    from ipm.checkpoint import adam_arrays
+
+    extra: dict = {"step": np.array(step), "settings": np.array(json.dumps(asdict(s))), **adam_arrays(opt, net)}
     return save_weights(net, path, extra)
-
-
-def _load_adam(opt: torch.optim.Adam, net: NeuralSubdivision, extra: dict) -> None:
-    for k, p in net.named_parameters():
-        if f"adam.m.{k}" in extra:
-            opt.state[p] = {"step": torch.tensor(float(extra[f"adam.t.{k}"])),
-                            "exp_avg": torch.as_tensor(extra[f"adam.m.{k}"]).clone(),
-                            "exp_avg_sq": torch.as_tensor(extra[f"adam.v.{k}"]).clone()}
 
 
 def evaluate(net: NeuralSubdivision, pairs: list[Pair]) -> dict[str, float]:

@@ -1,0 +1,90 @@
+"""First guesses from a trained network: the most probable combinations of the discrete values, each with the
+continuous values the network expects and the yaw it finds most likely, turned into the world by the camera."""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from dataclasses import dataclass, field
+
+import torch
+
+from ipm.proposals.encode import TRAIN_AZIMUTH, camera_azimuth, encode_mask
+from ipm.proposals.net import YAW_BINS, ProposalNet
+from ipm.types import Camera
+
+MAX_PROPOSALS = 4
+MASS = 0.9   # proposals are taken, most probable first, until they hold this share of the probability
+
+
+@dataclass(frozen=True)
+class Proposal:
+    """A guess: the generator's ``values``, its probability under the discrete heads, the world yaw (degrees;
+    the fit's pose convention) and the continuous parameters' predicted standard deviations (normalized units)."""
+
+    values: dict
+    probability: float
+    yaw_deg: float
+    std: dict = field(default_factory=dict)
+
+
+class Proposer:
+    """A trained :class:`~ipm.proposals.net.ProposalNet` for generator ``gen``."""
+
+    def __init__(self, net: ProposalNet, gen, source: str = ""):
+        self.net, self.gen, self.source = net, gen, source
+
+    @torch.no_grad()
+    def heads(self, mask: torch.Tensor) -> dict:
+        """The network's outputs for one mask ``(H, W)`` (batch of one, float32, on the CPU)."""
+        x = encode_mask(mask.detach().cpu(), self.net.config.size)[None]
+        return self.net(x)
+
+    def propose(self, mask: torch.Tensor, camera: Camera, k: int = MAX_PROPOSALS) -> list[Proposal]:
+        """At most ``k`` proposals for the object that ``mask (H, W)`` shows in ``camera``, most probable first,
+        taken until they hold :data:`MASS` of the discrete heads' probability."""
+        out = self.heads(mask)
+        spec = self.gen.spec
+        cont = [p for p in spec.params if p.continuous]
+        mean, std = out["mean"][0].double(), out["log_std"][0].double().exp()
+        base = {p.name: float(p.lo + float(mean[i]) * (p.hi - p.lo)) for i, p in enumerate(cont)}
+        stds = {p.name: float(std[i]) for i, p in enumerate(cont)}
+        probs = [torch.softmax(lg[0].double(), 0) for lg in out["discrete"]]
+        yaw_rel = float(torch.argmax(out["yaw"][0])) * 360.0 / YAW_BINS
+        yaw = (yaw_rel + camera_azimuth(camera) - TRAIN_AZIMUTH + 180.0) % 360.0 - 180.0
+        names = [(name, lo) for name, lo, _ in self.net.config.discrete]
+        picked, mass = [], 0.0
+        for p, combo in _most_probable(probs, k):
+            values = dict(base)
+            values.update({name: lo + j for (name, lo), j in zip(names, combo)})
+            picked.append(Proposal(values, p, yaw, stds))
+            mass += p
+            if mass >= MASS:
+                break
+        return picked
+
+
+def _most_probable(probs: list[torch.Tensor], k: int):
+    """The ``k`` most probable combinations ``(probability, indices)`` of independent heads, best first (a best-first
+    walk of the product, each head's values sorted)."""
+    if not probs:
+        yield 1.0, ()
+        return
+    order = [torch.argsort(p, descending=True).tolist() for p in probs]
+    sorted_p = [[float(p[j]) for j in o] for p, o in zip(probs, order)]
+
+    def prob(ranks):
+        return float(torch.tensor([sp[r] for sp, r in zip(sorted_p, ranks)], dtype=torch.float64).prod())
+
+    start = (0,) * len(probs)
+    heap, seen = [(-prob(start), start)], {start}
+    for _ in itertools.repeat(None, k):
+        if not heap:
+            return
+        neg, ranks = heapq.heappop(heap)
+        yield -neg, tuple(o[r] for o, r in zip(order, ranks))
+        for h in range(len(ranks)):
+            nxt = ranks[:h] + (ranks[h] + 1,) + ranks[h + 1:]
+            if nxt[h] < len(order[h]) and nxt not in seen:
+                seen.add(nxt)
+                heapq.heappush(heap, (-prob(nxt), nxt))
