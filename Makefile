@@ -58,6 +58,16 @@ table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside t
 weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the package (about a minute on 2 cores)
 	$(BIN)/ipm train-subdivision -o ipm/subdiv/weights/neural_dishes.npz --pairs 32 --steps 1500 --seed 0
 
+proposals: $(STAMP) ## retrain the proposal networks shipped in the package (ipm fit --init; 8 and 13 minutes on a busy 2-core machine)
+	$(BIN)/ipm train-proposals dishes -o ipm/proposals/weights/dishes.npz --samples 15000 --steps 8000 --seed 0
+	$(BIN)/ipm train-proposals building -o ipm/proposals/weights/building.npz --samples 15000 --steps 8000 --seed 0
+
+table-proposals: $(STAMP) ## the proposal networks alone on held-out generator samples, results/table_proposals/
+	$(call run_bench,table_proposals,table_proposals)
+
+table-init: $(STAMP) ## K = 1 fits started from the presets, the learned proposals or both, results/table_init/
+	$(call run_bench,table_init,table_init)
+
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
@@ -85,7 +95,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

@@ -56,8 +56,8 @@ CameraOpt = Annotated[str, typer.Option(help="known (cameras.json) or fit (recov
 DiscreteOpt = Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")]
 InitOpt = Annotated[str, typer.Option(help=(
     "where the search starts: presets (the pose grid and the generator's presets), learned (a trained network's "
-    "proposals from the first view's mask: ipm list proposals) or both (the proposals beside the presets, where "
-    "weights exist)"))]
+    "proposals from the first view's mask: ipm list proposals; the pose grid runs on the most probable) or both "
+    "(the proposals ranked with the presets)"))]
 ProposalsOpt = Annotated[Path | None, typer.Option(help=(
     "proposal weights (ipm train-proposals); default: those shipped for the generator"))]
 BudgetOpt = Annotated[int | None, typer.Option(help=(
@@ -128,7 +128,7 @@ def register(app: typer.Typer) -> None:
         image_weight: ImageWeightOpt = 1.0,
         camera: CameraOpt = "known",
         discrete: DiscreteOpt = "memetic",
-        init: InitOpt = "both",
+        init: InitOpt = "presets",
         proposals: ProposalsOpt = None,
         budget: BudgetOpt = None,
         seed: SeedOpt = 0,

@@ -28,7 +28,6 @@ from ipm.optim.pose import (
     pose_grid,
     preset_starts,
     spread_starts,
-    with_proposals,
     yaw_free,
     yaw_turns,
 )
@@ -203,10 +202,7 @@ def _starts(prob: Problem, ev: Evaluator, settings: FitSettings) -> tuple[list, 
         if proposals and settings.init == "learned":
             starts, presets, free_yaw = learned_starts(prob, ev, proposals)
         else:
-            starts, presets, free_yaw = initial_starts(prob, ev, rank=rank)
-            if proposals:
-                starts, presets, looked = with_proposals(prob, ev, starts, presets, proposals)
-                info.update(looked)
+            starts, presets, free_yaw = initial_starts(prob, ev, rank=rank, proposals=proposals)
     except BudgetExhausted:
         starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
         presets = preset_starts(prob, starts[0][0])

@@ -44,17 +44,18 @@ def proposed(prob: Problem, proposals: list, x_pose: torch.Tensor) -> list[tuple
     return out
 
 
-def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = False):
+def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = False, proposals: list = ()):
     """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale and translation set
     from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best
     (with ``rank``, best first: :func:`rank_presets`), whether the grid left the yaw undetermined: see
-    :func:`yaw_free`)."""
+    :func:`yaw_free`). Learned ``proposals`` (``init = "both"``) join the presets, each posed at its own yaw,
+    and are ranked with them: one takes a preset's place only where it looks better."""
     d = dict(prob.d0)
     graded = pose_grid(prob, ev, d, keep=keep)
     starts = [(e[1], d) for e in graded] or [(prob.x0(), d)]
-    presets = preset_starts(prob, starts[0][0])
-    return starts, rank_presets(prob, ev, presets) if rank else presets, yaw_free(graded)
-
+    presets = proposed(prob, proposals, starts[0][0]) + preset_starts(prob, starts[0][0])
+    return (starts, rank_presets(prob, ev, presets, learned=len(proposals)) if rank else presets,
+            yaw_free(graded))
 
 def learned_starts(prob: Problem, ev: Evaluator, proposals: list, keep: int = 4):
     """``init = "learned"``: :func:`initial_starts` with the network's proposals in place of the start and the
@@ -71,24 +72,7 @@ def learned_starts(prob: Problem, ev: Evaluator, proposals: list, keep: int = 4)
     return starts, presets, yaw_free(graded)
 
 
-def with_proposals(prob: Problem, ev: Evaluator, starts: list, presets: list, proposals: list
-                   ) -> tuple[list, list, dict]:
-    """``init = "both"``: the proposals posed like the best start, each at its own yaw, looked at (:func:`looks`);
-    the best of them becomes the first start when it looks better than every start and preset so far, and all of
-    them go before the presets. Returns (starts, presets, what the trajectory should say of them)."""
-    before = ev.best.loss
-    entries = proposed(prob, proposals, starts[0][0])
-    ev.phase = "init:learned"
-    scored = sorted(looks(prob, ev, entries), key=lambda e: (e[0], e[1]))
-    ranked = [(x, entries[i][1]) for _, i, x in scored]
-    first = bool(scored) and scored[0][0] < before
-    if first:
-        starts = [ranked[0], *starts]
-    info = {"looks": [float(loss) for loss, _, _ in sorted(scored, key=lambda e: e[1])], "first_start": first}
-    return starts, ranked + presets, info
-
-
-def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor, dict]]
+def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor, dict]], learned: int = 0
                  ) -> list[tuple[torch.Tensor, dict]]:
     """``presets`` (x, discrete) best first by one cheap look each: rendered where the best start is, then
     rescaled and moved so that their silhouettes' areas and centroids match the target's (one more
@@ -96,29 +80,33 @@ def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor,
     takes the ones that look like the target rather than the first few by name (a synthetic bottle
     fitted from the ``mug`` preset: ``bottle`` first, loss 0.064, the others 0.24 to 0.68; alphabetically
     the population of 8 never reached ``pitcher``, ``plate`` or ``vase``). Silhouette targets only; the
-    order is kept for others and when the budget ends."""
+    order is kept for others and when the budget ends. The first ``learned`` entries are learned proposals
+    (their looks are recorded as phase ``init:learned``)."""
     from ipm.optim.evaluator import BudgetExhausted
 
     if not isinstance(prob.target, MaskTarget) or not prob.s.pose or len(presets) < 2:
         return presets
-    ev.phase = "init:presets"
     try:
-        scored = looks(prob, ev, presets)
+        labels = ["init:learned"] * learned + ["init:presets"] * (len(presets) - learned)
+        scored = looks(prob, ev, presets, labels=labels)
     except BudgetExhausted:
         return presets
     return [(x, presets[i][1]) for _, i, x in sorted(scored, key=lambda e: (e[0], e[1]))]
 
 
-def looks(prob: Problem, ev: Evaluator, entries: list[tuple[torch.Tensor, dict]]
+def looks(prob: Problem, ev: Evaluator, entries: list[tuple[torch.Tensor, dict]], labels: list[str] | None = None
           ) -> list[tuple[float, int, torch.Tensor]]:
     """One cheap look at each of ``entries`` (x, discrete): its loss where it stands, and, rescaled and moved so
     that its silhouettes' areas and centroids match the target's, once more; ``(loss, index, x)`` of the better
-    of the two, in the entries' order. Raises ``BudgetExhausted`` when the budget ends."""
+    of the two, in the entries' order; each entry's evaluations recorded under its ``labels`` entry (default: the
+    evaluator's phase as it is). Raises ``BudgetExhausted`` when the budget ends."""
     from ipm.optim.encoding import encode_log2_scale, encode_translation
 
     tgt = prob.target.masks.sum((-2, -1))
     scored = []
     for i, (x, d) in enumerate(entries):
+        if labels is not None:
+            ev.phase = labels[i]
         loss, _ = ev(x, d, grad=False)
         area, cen = ev.last.get("area"), ev.last.get("centroid")
         best = (loss, i, x)

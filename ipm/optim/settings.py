@@ -28,7 +28,8 @@ ANCHOR = 0.02
 CameraMode = Literal["known", "fit"]
 CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 # where a fit starts (ipm.optim.pose): the pose grid and the presets, a trained network's proposals
-# (ipm.proposals), or both (the proposals beside the presets, where weights exist)
+# (ipm.proposals), or both (the proposals ranked with the presets). The default stays "presets": on the public
+# K = 1 targets "learned" gains on average but loses on the targets a preset already fits (results/proposals.md)
 InitMode = Literal["both", "learned", "presets"]
 INIT_MODES: tuple[str, ...] = get_args(InitMode)
 
@@ -52,7 +53,7 @@ class FitSettings:
     # soft rasterizer blur; 0 = the renderer's default for the image size
     sigma: Annotated[float, Meta(ge=0, extra={"noun": "a blur"})] = 0.0
     preset: str | None = None        # start from this preset (default: the generator's defaults)
-    init: InitMode = "both"
+    init: InitMode = "presets"
     # a proposal network's weights file (ipm train-proposals); None: the weights shipped for the generator
     proposals: str | None = None
     # continuous parameters to fit (default: all)

@@ -1,0 +1,59 @@
+"""Bench method ``proposal``: a proposal network's best guess, scored with no refinement (issue #29's baseline).
+
+The network (:mod:`ipm.proposals`: the weights shipped for ``generator``, or ``weights``) reads the first input
+mask; its most probable proposal is posed at its own yaw, with the scale and translation that match its
+silhouettes' areas and centroids to the masks' (two evaluations: :func:`ipm.optim.pose.looks`), and nothing
+else: no gradient step, no search. What the table shows beside ``ipm`` is how much of a fit the first guess
+already is.
+
+Settings: ``generator`` (required), ``weights`` (a weights file; default the shipped ones), ``max_size`` (as the
+``ipm`` method's).
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Annotated
+
+import msgspec
+import torch
+
+from ipm.bench.methods import Prediction, Task, method
+from ipm.errors import InputError, MethodFailed
+from ipm.types import TriMesh
+
+
+class ProposalSettings(msgspec.Struct, frozen=True, forbid_unknown_fields=True):
+    generator: str
+    weights: str | None = None
+    max_size: Annotated[int, msgspec.Meta(ge=8, le=4096)] | None = None
+
+
+@method("proposal", ProposalSettings)
+def proposal(task: Task, s: ProposalSettings, budget: int, seed: int) -> Prediction:
+    """The network's most probable proposal, posed by one look (module docstring)."""
+    from ipm.bench.views import fit_views
+    from ipm.generators import get_generator
+    from ipm.optim.evaluator import Evaluator
+    from ipm.optim.fit import FitSettings, MaskTarget, Problem
+    from ipm.optim.pose import looks, proposed
+    from ipm.proposals import load_proposer
+
+    gen = get_generator(s.generator)
+    proposer = load_proposer(gen, s.weights)
+    if proposer is None:
+        raise InputError(f"proposal: expected proposal weights for {s.generator} (ipm list proposals), got none")
+    size = s.max_size if s.max_size is not None else max(task.masks.shape[1:])
+    masks, cams = fit_views(task.masks, task.cameras, size, torch.float32)
+    t0 = time.perf_counter()
+    props = proposer.propose(masks[0], cams[0], k=1)
+    if not props:
+        raise MethodFailed("proposal: the network proposed nothing")
+    prob = Problem(gen, MaskTarget(masks, cams), FitSettings(budget=2, seed=seed, init="presets"))
+    ev = Evaluator(prob.objective, 2)
+    entry = proposed(prob, props, prob.x0())[0]
+    _, _, x = looks(prob, ev, [entry])[0]
+    mesh = prob.mesh_world(x.to(torch.float64), entry[1]).detach()
+    return Prediction(TriMesh(mesh.verts.double(), mesh.faces), ev.count, time.perf_counter() - t0,
+                      {"params": prob.values(x, entry[1]), "discrete": entry[1],
+                       "probability": round(props[0].probability, 4)})
