@@ -32,6 +32,7 @@ def path(rel: str) -> Path:
 MUG = "vessels/ocrtoc_mug.ply"                   # Z up
 BOTTLE = "vessels/trimesh_fuze_bottle.obj"       # Z up (the README says Y: its long axis is Z, base at z = 0)
 ARMCHAIR = "furniture/kaolin_armchair.obj"       # Y up
+DUTCH_HOUSE = "buildings/3dbag_0503100000031927_lod22.obj"   # Z up, LoD2.2 (table_coverage's building_5)
 PHOTOS = "photos/cleargrasp_cups"
 PHOTO = f"{PHOTOS}/000000130-opaque-rgb-img.jpg"
 PHOTO_DEPTH = f"{PHOTOS}/000000130-opaque-depth-mm.png"

@@ -61,6 +61,11 @@ def register(app: typer.Typer) -> None:
         st = S.structure_showcase(out)
         print(f"  {st['structure']}: {st['nodes']} nodes, held-out silhouette IoU {st['heldout_iou']:.3f}, "
               f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
+        print("learned proposals (#29): a real LoD2 house from one view, started from a preset and from the "
+              "network's guesses ...", flush=True)
+        for init, r in S.learned_start(out).items():
+            counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
+            print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
         print("universal SDF generator: meshes and Jacobians ...", flush=True)
         for name, r in S.sdf_showcase(out).items():
             print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
@@ -73,5 +78,6 @@ def register(app: typer.Typer) -> None:
         print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
         print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
               "bottle_revolved.obj; outline.png and outline.svg")
+        print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
               "structures.jsonl (every tree tried), result.json")
