@@ -1,0 +1,91 @@
+"""``results/proposals.md``: the shipped proposal networks (issue #29) in numbers, from the committed code and weights.
+
+1. Each head on 200 held-out generator samples (:data:`ipm.proposals.train.HELDOUT_SEED`'s stream, which no
+   training run draws): every discrete head's accuracy beside chance (its most frequent value), the continuous
+   parameters' mean absolute error beside guessing their mean, the yaw within one bin beside chance.
+2. ``results/table_proposals`` (the network's guess alone, scored as a K = 1 cell) and ``results/table_init``
+   (K = 1 fits started from the presets, the proposals or both), summarized per generator and per target.
+
+``python -m benchmarks.proposal_report`` (about two minutes; run ``make table-proposals table-init`` first).
+"""
+
+from __future__ import annotations
+
+import collections
+import json
+import statistics
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+HELD_OUT = 200
+
+
+def _heads() -> list[str]:
+    from ipm.generators import get_generator
+    from ipm.proposals import shipped
+    from ipm.proposals.data import make_samples
+    from ipm.proposals.net import load_weights
+    from ipm.proposals.train import HELDOUT_SEED, evaluate
+
+    lines = ["## Each head on held-out generator samples", "",
+             f"{HELD_OUT} samples per generator from the held-out seed's stream; accuracy against always guessing the "
+             "most frequent value.", ""]
+    for name, path in shipped().items():
+        gen = get_generator(name)
+        net, extra = load_weights(path, gen)
+        s = evaluate(net, make_samples(gen, HELD_OUT, HELDOUT_SEED))
+        train = json.loads(str(extra["settings"]))
+        lines += [f"### {name} ({train['samples']} training renders, {train['steps']} steps, "
+                  f"{sum(p.numel() for p in net.parameters()):,} weights)", "",
+                  "| head | accuracy | chance |", "|---|---|---|"]
+        lines += [f"| {h} | {v['accuracy']:.3f} | {v['chance']:.3f} |" for h, v in s["discrete"].items()]
+        lines += [f"| yaw within 15 deg | {s['yaw_within_one_bin']:.3f} | {s['yaw_chance']:.3f} |", "",
+                  f"Continuous parameters: mean absolute error {s['continuous_mae']:.4f} (normalized units) against "
+                  f"{s['continuous_mae_of_the_mean']:.4f} for always guessing their mean.", ""]
+    return lines
+
+
+def _rows(folder: str) -> list[dict]:
+    path = ROOT / "results" / folder / "rows.jsonl"
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+def _tables() -> list[str]:
+    lines = ["## The guess alone (results/table_proposals)", "",
+             "| generator | targets | held-out IoU mean | median | discrete accuracy | parameter error |",
+             "|---|---|---|---|---|---|"]
+    rows = [r for r in _rows("table_proposals") if r.get("status") == "ok"]
+    for g in sorted({r["target"].rsplit("_", 1)[0] for r in rows}):
+        rs = [r for r in rows if r["target"].rsplit("_", 1)[0] == g]
+        iou = [r["heldout_iou"] for r in rs]
+        lines.append(f"| {g} | {len(rs)} | {statistics.mean(iou):.3f} | {statistics.median(iou):.3f} | "
+                     f"{statistics.mean(r['discrete_accuracy'] for r in rs):.3f} | "
+                     f"{statistics.mean(r['param_error'] for r in rs):.3f} |")
+    by = collections.defaultdict(lambda: collections.defaultdict(list))
+    for r in _rows("table_init"):
+        by[r["target"]][r["method"]].append(r["heldout_iou"])
+    methods = ["ipm-presets", "ipm-learned", "ipm-both"]
+    lines += ["", "## Where a K = 1 fit starts (results/table_init; mean of seeds 0, 1, 2)", "",
+              "| target | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    for t, m in by.items():
+        lines.append(f"| {t} | " + " | ".join(f"{statistics.mean(m[k]):.3f}" for k in methods) + " |")
+    if by:
+        lines.append("| mean | " + " | ".join(f"{statistics.mean(statistics.mean(by[t][k]) for t in by):.3f}"
+                                             for k in methods) + " |")
+    return lines
+
+
+def main() -> int:
+    from benchmarks.common import machine
+    from ipm.files import write_text
+
+    lines = ["# Learned proposals (issue #29)", "", f"Machine: {machine()}  ",
+             "Command: `python -m benchmarks.proposal_report`", "", *_heads(), *_tables()]
+    write_text(ROOT / "results" / "proposals.md", "\n".join(lines) + "\n")
+    print(ROOT / "results" / "proposals.md")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
