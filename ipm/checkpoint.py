@@ -22,9 +22,21 @@ def adam_arrays(opt: torch.optim.Adam, module: torch.nn.Module) -> dict[str, np.
 
 
 def load_adam(opt: torch.optim.Adam, module: torch.nn.Module, arrays: dict) -> None:
-    """Restore the state :func:`adam_arrays` wrote into ``opt`` (built over ``module``'s parameters)."""
+    """Restore the state :func:`adam_arrays` wrote into ``opt`` (built over ``module``'s parameters); ``InputError``
+    for moments whose shapes are not their parameters' or that are not finite floats, or a step that is not a
+    non-negative number."""
+    from ipm.errors import InputError
+
     for k, p in module.named_parameters():
         if f"adam.m.{k}" in arrays:
+            for part in ("m", "v"):
+                a = np.asarray(arrays[f"adam.{part}.{k}"])
+                if tuple(a.shape) != tuple(p.shape) or a.dtype.kind != "f" or not np.isfinite(a).all():
+                    raise InputError(f"checkpoint: Adam's state of {k}: expected finite floats of shape "
+                                     f"{tuple(p.shape)}, got {a.dtype} {tuple(a.shape)}")
+            t = np.asarray(arrays.get(f"adam.t.{k}", np.nan))
+            if t.shape != () or t.dtype.kind not in "fiu" or not (np.isfinite(t) and t >= 0):
+                raise InputError(f"checkpoint: Adam's step of {k}: expected a non-negative number, got {t!r}")
             opt.state[p] = {"step": torch.tensor(float(arrays[f"adam.t.{k}"])),
                             "exp_avg": torch.as_tensor(np.array(arrays[f"adam.m.{k}"])).clone(),
                             "exp_avg_sq": torch.as_tensor(np.array(arrays[f"adam.v.{k}"])).clone()}

@@ -139,6 +139,9 @@ def read_npz(path: str | Path, what: str, expected: str, max_bytes: int) -> dict
     if total > max_bytes:
         raise InputError(f"{what} {path}: expected arrays of at most {max_bytes / 2**30:.3g} GB in all (the limit), "
                          f"got arrays declaring {total / 2**30:.1f} GB")
+    import zipfile
+    import zlib
+
     try:
         z = np.load(path, allow_pickle=False, mmap_mode="r")  # a .npy is mapped, not read
         if not isinstance(z, np.lib.npyio.NpzFile):
@@ -146,7 +149,7 @@ def read_npz(path: str | Path, what: str, expected: str, max_bytes: int) -> dict
                              "a .npy file)")
         with z:
             return {k: z[k] for k in z.files}
-    except (ValueError, OSError, EOFError) as e:  # pickled objects, not a zip, truncated
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error) as e:  # pickles, not a zip, truncated
         if isinstance(e, InputError):
             raise
         raise InputError(f"{what} {path}: expected an .npz of plain arrays, got an error: "

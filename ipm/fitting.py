@@ -86,7 +86,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
     from ipm.io.fit_targets import TargetFiles, load_target
     from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, final_files, first_run, write_json
     from ipm.optim.evaluator import ReplayMismatch
-    from ipm.optim.fit import hard_scores, run_fit
+    from ipm.optim.fit import check_proposals, hard_scores, run_fit
     from ipm.optim.problem import Problem
 
     replay: list[dict] = []
@@ -108,6 +108,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
     cfg.check()
     target, photo = load_target(files, camera=cfg.camera, device=device)
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written
+    check_proposals(gen, target, cfg)  # and proposal weights that cannot be read
     sink = None
     with first_run(run_dir, resume=resume):
         if run_dir is not None:

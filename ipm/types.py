@@ -196,8 +196,8 @@ class FitResult:
     pose: dict = field(default_factory=dict)
     kind: str = "parametric"
     tree: dict | None = None
-    # where the fit started (ipm.optim.fit.run_fit): the init mode, the learned proposals (their discrete
-    # values, probabilities, yaws and looks) and whether the best of them became the first start
+    # where the fit started (ipm.optim.fit.run_fit): the init mode and the learned proposals it used (their
+    # discrete values, probabilities and yaws); their evaluations are recorded as phase "init:learned"
     start: dict = field(default_factory=dict)
     # the result as a mesh in the target's own frame (None where there is none: an unlifted 2D fit)
     shape: TriMesh | None = field(default=None, repr=False, compare=False)

@@ -178,8 +178,8 @@ def test_a_fit_started_from_proposals_says_so(tmp_path, capsys):
         assert "init:learned" in phases
     # presets: no proposals looked at
     run = tmp_path / "run_presets"
-    code, _, err = run_cli(["fit", "dishes", "--masks", str(masks), "--init", "presets", "--proposals", str(weights),
-                            "--budget", "20", "-o", str(run)], capsys)
+    code, _, err = run_cli(["fit", "dishes", "--masks", str(masks), "--init", "presets", "--budget", "20",
+                            "-o", str(run)], capsys)
     assert code == 0, err
     assert json.loads((run / "result.json").read_text())["start"] == {"init": "presets"}
 
@@ -222,3 +222,69 @@ def test_the_proposal_bench_method_poses_the_guess_with_two_evaluations():
     assert pred.evaluations == 2 and pred.info["discrete"] == {"has_handle": 1}
     seen = rasterize(pred.mesh.verts, pred.mesh.faces, cams[0]).mask
     assert _iou(seen.float(), masks[0]) > 0.75
+
+
+def test_damaged_weights_and_checkpoints_are_bad_input(tmp_path):
+    gen = get_generator("dishes")
+    good = save_weights(ProposalNet(NetConfig.for_generator(gen)), tmp_path / "w.npz")
+    (tmp_path / "cut.npz").write_bytes(good.read_bytes()[:3000])  # a truncated zip
+    with pytest.raises(InputError, match="cut.npz"):
+        load_weights(tmp_path / "cut.npz")
+    arrays = dict(np.load(good))
+    arrays["config"] = np.array(json.dumps({**json.loads(str(arrays["config"])), "size": 1e400}))
+    np.savez(tmp_path / "huge.npz", **arrays)
+    with pytest.raises(InputError, match="expected a config entry"):
+        load_weights(tmp_path / "huge.npz")
+    data = _tiny(gen)
+    s = TrainSettings(samples=24, steps=4, batch=8)
+    train(gen, s, checkpoint=tmp_path / "c.npz", every=2, data=data)
+    ck = dict(np.load(tmp_path / "c.npz"))
+    for key, value, match in (("settings", np.array("{not json"), "expected a checkpoint's settings"),
+                              ("step", np.array(-3), "expected a step from 0 to 4"),
+                              ("adam.m.yaw.bias", np.zeros(3, dtype=np.float32), "Adam's state of yaw.bias")):
+        np.savez(tmp_path / "bad.npz", **{**ck, key: value})
+        with pytest.raises(InputError, match=match):
+            train(gen, s, checkpoint=tmp_path / "bad.npz", resume=True, data=data)
+
+
+def test_a_generator_whose_renders_never_fit_the_image_is_refused(monkeypatch):
+    from ipm.proposals import data as D
+
+    monkeypatch.setattr(D, "render_sample", lambda *a, **k: None)
+    with pytest.raises(InputError, match=r"expected renders of its samples in the image, got 0 of 1050 tries"):
+        D.make_samples(get_generator("dishes"), 1, seed=0)
+
+
+def test_proposal_settings_that_cannot_apply_are_refused_before_a_run_folder(tmp_path, capsys):
+    masks = tmp_path / "m"
+    code, _, err = run_cli(["render", "dishes", "--preset", "mug", "--views", "1", "--size", "48", "--no-previews",
+                            "-o", str(masks)], capsys)
+    assert code == 0, err
+    (tmp_path / "text.npz").write_text("weights\n")
+    cases = [(["--proposals", str(tmp_path / "text.npz"), "--init", "learned"], "text.npz"),
+             (["--proposals", str(tmp_path / "text.npz")], "proposals: applies with init learned or both"),
+             (["--proposals", str(tmp_path / "none.npz"), "--init", "both"], "none.npz")]
+    for extra, message in cases:
+        code, _, err = run_cli(["fit", "dishes", "--masks", str(masks), "--budget", "3", *extra,
+                                "-o", str(tmp_path / "run")], capsys)
+        assert code == 2 and err.count("\n") == 1 and message in err, err
+        assert not (tmp_path / "run").exists()
+
+
+def test_learned_starts_keep_the_pose_when_it_is_held(tmp_path, capsys):
+    """With --no-pose the proposals are evaluated where the start stands: no look rescales or moves them."""
+    masks = tmp_path / "m"
+    code, _, err = run_cli(["render", "dishes", "--preset", "mug", "--views", "1", "--size", "48", "--no-previews",
+                            "-o", str(masks)], capsys)
+    assert code == 0, err
+    gen = get_generator("dishes")  # a two-step network: unsure of the handle, so two proposals
+    weights = save_weights(train(gen, TrainSettings(samples=24, steps=2, batch=8), data=_tiny(gen)),
+                           tmp_path / "w.npz")
+    code, _, err = run_cli(["fit", "dishes", "--masks", str(masks), "--init", "learned", "--proposals", str(weights),
+                            "--no-pose", "--budget", "30", "-o", str(tmp_path / "run")], capsys)
+    assert code == 0, err
+    result = json.loads((tmp_path / "run" / "result.json").read_text())
+    assert len(result["start"]["proposals"]) == 2
+    records = [json.loads(line) for line in (tmp_path / "run" / "trajectory.jsonl").read_text().splitlines()]
+    learned = [r for r in records if r["phase"] == "init:learned"]
+    assert learned and all(r["x"][-5:] == pytest.approx([0.5] * 5) for r in learned)  # the identity pose

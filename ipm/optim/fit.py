@@ -85,20 +85,31 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
 
 def learned_proposals(prob: Problem, settings: FitSettings) -> list:
     """The proposals of the generator's network for the first view's mask (:mod:`ipm.proposals`), where
-    ``settings.init`` asks for them and the target is masks; none for ``init = "presets"``, for ``"both"``
-    without weights; ``InputError`` for ``"learned"`` without weights."""
+    ``settings.init`` asks for them (:func:`check_proposals`); none otherwise."""
+    proposer = check_proposals(prob.gen, prob.target, settings)
+    return [] if proposer is None else proposer.propose(prob.target.masks[0], prob.target.cameras[0])
+
+
+def check_proposals(gen, target, settings: FitSettings):
+    """The proposer a fit with ``settings`` uses (None for ``init = "presets"`` and for ``"both"`` without weights
+    or with a mesh target), its weights read and checked: ``InputError`` for ``"learned"`` with a mesh target or
+    without weights, and for a weights file that is not one or was trained for other parameters. Called before a
+    run folder is made (:func:`ipm.fitting.fit`) and by the fit itself."""
     from ipm.errors import InputError
     from ipm.proposals import load_proposer
 
-    if settings.init == "presets" or not isinstance(prob.target, MaskTarget):
-        return []
-    proposer = load_proposer(prob.gen, settings.proposals)
-    if proposer is None:
+    if settings.init == "presets":
+        return None
+    if not isinstance(target, MaskTarget):
         if settings.init == "learned":
-            raise InputError(f"init learned: expected proposal weights for {prob.gen.name}, got none; train them "
-                             f"with ipm train-proposals {prob.gen.name} -o W.npz and pass --proposals W.npz")
-        return []
-    return proposer.propose(prob.target.masks[0], prob.target.cameras[0])
+            raise InputError("init learned: expected masks, a photo or a mask set (the proposals read a mask), got a "
+                             "mesh target")
+        return None
+    proposer = load_proposer(gen, settings.proposals)
+    if proposer is None and settings.init == "learned":
+        raise InputError(f"init learned: expected proposal weights for {gen.name}, got none; train them with ipm "
+                         f"train-proposals {gen.name} -o W.npz and pass --proposals W.npz")
+    return proposer
 
 
 def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float:

@@ -48,8 +48,9 @@ def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = Fal
     """Rank poses on a grid (yaw; with ``camera="fit"`` also elevation and FOV), scale and translation set
     from mask areas and centroids. Returns (the best ``keep`` starts, the presets posed like the best
     (with ``rank``, best first: :func:`rank_presets`), whether the grid left the yaw undetermined: see
-    :func:`yaw_free`). Learned ``proposals`` (``init = "both"``) join the presets, each posed at its own yaw,
-    and are ranked with them: one takes a preset's place only where it looks better."""
+    :func:`yaw_free`). Learned ``proposals`` (``init = "both"``) join the presets before them, each posed at its
+    own yaw; with ``rank`` they are ranked with them, so that one takes a preset's place only where it looks
+    better."""
     d = dict(prob.d0)
     graded = pose_grid(prob, ev, d, keep=keep)
     starts = [(e[1], d) for e in graded] or [(prob.x0(), d)]
@@ -60,14 +61,14 @@ def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = Fal
 def learned_starts(prob: Problem, ev: Evaluator, proposals: list, keep: int = 4):
     """``init = "learned"``: :func:`initial_starts` with the network's proposals in place of the start and the
     presets: the pose grid runs on the most probable proposal's values; the others, posed like its best pose at
-    their own yaws, are looked at (:func:`looks`) and come best first as the presets."""
+    their own yaws, are looked at (:func:`looks`, where the pose is searched) and come best first as the presets."""
     ev.phase = "init:learned"
     first = proposed(prob, proposals[:1], prob.x0())[0]
     graded = pose_grid(prob, ev, first[1], first[0], keep=keep)
     starts = [(e[1], first[1]) for e in graded] or [first]
     rest = proposed(prob, proposals[1:], starts[0][0])
     ev.phase = "init:learned"
-    scored = looks(prob, ev, rest) if rest and isinstance(prob.target, MaskTarget) else []
+    scored = looks(prob, ev, rest) if rest and isinstance(prob.target, MaskTarget) and prob.s.pose else []
     presets = [(x, rest[i][1]) for _, i, x in sorted(scored, key=lambda e: (e[0], e[1]))] or rest
     return starts, presets, yaw_free(graded)
 

@@ -139,6 +139,8 @@ class FitSettings:
             if not isinstance(s, cls):
                 raise InputError(f"{name}: expected a table of {name} settings, got {s!r}")
             _check_nested(name, cls, _plain(s))
+        if self.proposals is not None and self.init == "presets":
+            raise InputError(f"proposals: applies with init learned or both, got init presets and {self.proposals!r}")
         if self.transport.dustbin is not None and not any(n == "sinkhorn" for _, n in terms):
             raise InputError(f"transport dustbin: applies to a loss with a sinkhorn term, got loss {self.loss!r}")
 

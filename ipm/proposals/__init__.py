@@ -3,8 +3,8 @@ milliseconds, from a small network trained on the CPU on the generator's own sam
 
 ``ipm train-proposals GEN -o WEIGHTS`` trains one (:mod:`ipm.proposals.train`); weights for ``dishes`` and
 ``building`` ship in ``ipm/proposals/weights/`` (plain arrays, rebuilt by ``make proposals``) and ``ipm list
-proposals`` shows them; a fit with ``--init learned`` or ``both`` starts from the network's top proposals as well
-as from the pose grid and the presets (:func:`ipm.optim.fit.run_fit`).
+proposals`` shows them; a fit with ``--init learned`` starts from the network's top proposals in place of the
+start and the presets, with ``--init both`` beside the presets (:func:`ipm.optim.fit.run_fit`).
 
 Modules: what the network sees (``encode``), the network and its weights files (``net``), training data
 (``data``), training (``train``), proposals from a trained network (``propose``).

@@ -19,6 +19,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from ipm.errors import InputError
 from ipm.proposals.encode import SIZE, TRAIN_AZIMUTH, encode_mask
 from ipm.proposals.net import YAW_BINS
 
@@ -27,6 +28,7 @@ NOISE, DETAIL_NOISE = 0.05, 0.02   # of a continuous parameter's range: how far 
 ELEVATIONS = (5.0, 45.0)   # degrees
 DISTANCES = (2.6, 4.0)     # the protocol's is 3.2
 RENDER = 96                # pixels a side of the renders, before the crop
+MAX_TRIES_PER_SAMPLE = 50  # renders drawn per sample asked for (plus 1000) before the generator is given up on
 
 
 @dataclass(frozen=True)
@@ -68,7 +70,6 @@ def render_sample(gen, values: dict, yaw_deg: float, elevation: float, distance:
     """The exact mask ``(size, size)`` bool of the generator's shape at ``values``, in the protocol's unit
     bounding sphere, turned by ``yaw_deg`` about +y, seen from the training azimuth; None when the shape is
     empty or leaves the image."""
-    from ipm.errors import InputError
     from ipm.metrics import unit_sphere_frame
     from ipm.render.camera import orbit_camera
     from ipm.render.raster import rasterize
@@ -92,12 +93,18 @@ def render_sample(gen, values: dict, yaw_deg: float, elevation: float, distance:
 
 
 def make_samples(gen, n: int, seed: int, progress=None) -> Samples:
-    """``n`` samples of ``gen`` drawn from ``seed`` (renders that come out empty or clipped are drawn again)."""
+    """``n`` samples of ``gen`` drawn from ``seed`` (renders that come out empty or clipped are drawn again, at most
+    :data:`MAX_TRIES_PER_SAMPLE` times per sample asked for and 1000 more: then ``InputError``)."""
     rng = np.random.default_rng(seed)
     cont = [p for p in gen.spec.params if p.continuous]
     disc = [p for p in gen.spec.params if not p.continuous]
     masks, cs, ds, ys = [], [], [], []
+    tries = 0
     while len(masks) < n:
+        tries += 1
+        if tries > MAX_TRIES_PER_SAMPLE * n + 1000:
+            raise InputError(f"{gen.name}: expected renders of its samples in the image, got {len(masks)} of "
+                             f"{tries - 1} tries (the others empty or clipped by the image's border)")
         values = sample_values(gen, rng)
         yaw = float(rng.uniform(0.0, 360.0))
         mask = render_sample(gen, values, yaw, float(rng.uniform(*ELEVATIONS)), float(rng.uniform(*DISTANCES)))

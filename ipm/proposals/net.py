@@ -4,8 +4,9 @@ standard deviation), each discrete parameter (a distribution over its values) an
 the camera (a distribution over :data:`YAW_BINS` bins; symmetric shapes spread it).
 
 Weights files are ``.npz`` of plain arrays (``net.*`` per parameter and a JSON ``config`` naming the generator,
-its parameters and their ranges), read by :func:`load_weights` with the checks of :func:`ipm.files.read_npz`; a
-file trained for other parameters is refused with one line.
+its continuous parameters and its discrete parameters with their ranges), read by :func:`load_weights` with the
+checks of :func:`ipm.files.read_npz`; a file trained for other parameters (names, order, discrete ranges) is
+refused with one line. Weights of one generator serve another with the same parameters.
 """
 
 from __future__ import annotations
@@ -115,7 +116,7 @@ def load_weights(path: str | Path, gen=None) -> tuple[ProposalNet, dict]:
     arrays = read_npz(path, "proposal weights", WEIGHTS_FILE, MAX_WEIGHTS_BYTES)
     try:
         config = NetConfig.from_json(str(arrays.pop("config")))
-    except (KeyError, ValueError, TypeError, RecursionError):
+    except (KeyError, ValueError, TypeError, RecursionError, OverflowError):
         raise InputError(f"proposal weights {path}: expected a config entry (JSON: generator, continuous, discrete, "
                          "size, channels, hidden)") from None
     if gen is not None:

@@ -84,15 +84,12 @@ def _train(gen, s: TrainSettings, checkpoint, every: int, resume: bool, data: Sa
     if data is None:
         data = make_samples(gen, s.samples, s.seed,
                             progress=None if progress is None else lambda i, n: progress("data", i, n, math.nan))
-    n = len(data)
-    rng = np.random.default_rng(s.seed)
-    epochs = -(-s.steps * s.batch // n)
-    order = np.concatenate([rng.permutation(n) for _ in range(epochs)])
+    order = _Order(len(data), s.seed)
     net.train()
     for step in range(start, s.steps):
         for g in opt.param_groups:
             g["lr"] = cosine_lr(s.lr, step, s.steps)
-        idx = torch.as_tensor(order[step * s.batch:(step + 1) * s.batch])
+        idx = torch.as_tensor(order.batch(step, s.batch))
         batch = Samples(augment(data.masks[idx], torch.Generator().manual_seed(s.seed * 1_000_003 + step)),
                         data.continuous[idx], data.discrete[idx], data.yaw[idx])
         opt.zero_grad()
@@ -109,6 +106,27 @@ def _train(gen, s: TrainSettings, checkpoint, every: int, resume: bool, data: Sa
     return net
 
 
+class _Order:
+    """The samples' order, one seeded permutation per epoch, drawn as the batches reach it and dropped once passed
+    (a long run's whole order would not fit in memory): batch ``step`` is items ``step * batch`` to
+    ``(step + 1) * batch`` of the epochs laid end to end."""
+
+    def __init__(self, n: int, seed: int):
+        self.n, self.rng, self.epochs, self.drawn = n, np.random.default_rng(seed), {}, 0
+
+    def batch(self, step: int, size: int) -> np.ndarray:
+        """The indices of batch ``step`` of ``size`` samples."""
+        lo, hi = step * size, (step + 1) * size
+        first, last = lo // self.n, (hi - 1) // self.n
+        while self.drawn <= last:
+            self.epochs[self.drawn] = self.rng.permutation(self.n)
+            self.drawn += 1
+        for e in [e for e in self.epochs if e < first]:
+            del self.epochs[e]
+        run = np.concatenate([self.epochs[e] for e in range(first, last + 1)])
+        return run[lo - first * self.n: hi - first * self.n]
+
+
 def _resumed(gen, s: TrainSettings, checkpoint) -> tuple[ProposalNet, torch.optim.Adam, int]:
     """The network, Adam and the step of ``checkpoint``, refused when it was trained with other settings."""
     if checkpoint is None or not Path(checkpoint).is_file():
@@ -116,11 +134,22 @@ def _resumed(gen, s: TrainSettings, checkpoint) -> tuple[ProposalNet, torch.opti
     net, extra = load_weights(checkpoint, gen)
     if "settings" not in extra or "step" not in extra:
         raise InputError(f"resume: {checkpoint} holds weights without training settings (not a checkpoint)")
-    same_settings(json.loads(str(extra["settings"])), asdict(s))
+    try:
+        saved = json.loads(str(extra["settings"]))
+        step = extra["step"]
+        if not isinstance(saved, dict) or step.shape != () or step.dtype.kind not in "iu":
+            raise ValueError
+        step = int(step)
+    except (ValueError, RecursionError, AttributeError):
+        raise InputError(f"resume: {checkpoint}: expected a checkpoint's settings (JSON) and step (an integer), got "
+                         "others") from None
+    same_settings(saved, asdict(s))
+    if not 0 <= step <= s.steps:
+        raise InputError(f"resume: {checkpoint}: expected a step from 0 to {s.steps}, got {step}")
     opt = torch.optim.Adam(net.parameters(), lr=s.lr)
     load_adam(opt, net, extra)
     net.train()
-    return net, opt, int(extra["step"])
+    return net, opt, step
 
 
 def strip_checkpoint(path: str | Path, out: str | Path) -> Path:
