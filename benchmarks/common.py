@@ -70,3 +70,17 @@ def _fmt(v) -> str:
     if isinstance(v, float):
         return f"{v:.4g}"
     return str(v)
+
+
+def render_counts_target(masks: Path) -> Path:
+    """The building counts case's target (``tests/test_stability_counts.py``, the reference fits): ``ipm render``
+    of panel5 with 7 floors and 4 windows, one 160 px view with depth and part labels, into ``masks``."""
+    from ipm.cli import main
+
+    try:
+        main(["render", "building", "--preset", "panel5", "--set", "floors=7", "--set", "windows=4", "--views", "1",
+              "--size", "160", "--no-previews", "-q", "-o", str(masks)])
+    except SystemExit as e:
+        if e.code:
+            raise RuntimeError(f"ipm render exited {e.code}") from None
+    return masks

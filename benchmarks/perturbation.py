@@ -159,15 +159,10 @@ def case_counts(tmp: Path, target_eps: float) -> dict:
     --size 160``, then ``ipm fit building --preset panel5 --masks M --parts M --discrete enumerate --range
     floors=4:10 --range windows=2:6`` with the other discrete values fixed at panel5's."""
     import ipm
-    from ipm.cli import main
+    from benchmarks.common import render_counts_target
 
     masks = tmp / "M"
-    try:
-        main(["render", "building", "--preset", "panel5", "--set", "floors=7", "--set", "windows=4", "--views", "1",
-              "--size", "160", "--no-previews", "-q", "-o", str(masks)])
-    except SystemExit as e:
-        if e.code:
-            raise RuntimeError(f"ipm render exited {e.code}") from None
+    render_counts_target(masks)
     if target_eps:
         from ipm.files import write_text
         from ipm.render.camera import cameras_to_json, load_cameras

@@ -62,10 +62,10 @@ def run_all(out: Path) -> dict:
     import torch
 
     import ipm
+    from benchmarks.common import render_counts_target
     from benchmarks.perturbation import COUNTS_FIXED
     from ipm import data as D
     from ipm import showcase
-    from ipm.cli import main
 
     torch.set_num_threads(1)
     res = {}
@@ -73,12 +73,7 @@ def run_all(out: Path) -> dict:
     res["mug"] = {"fingerprint": _hash(_records(out / "mug_fit" / "trajectory.jsonl")),
                   "final": {"heldout_iou": mug["heldout_iou_mean"]}}
     masks = out / "M"
-    try:
-        main(["render", "building", "--preset", "panel5", "--set", "floors=7", "--set", "windows=4", "--views", "1",
-              "--size", "160", "--no-previews", "-q", "-o", str(masks)])
-    except SystemExit as e:
-        if e.code:
-            raise RuntimeError(f"ipm render exited {e.code}") from None
+    render_counts_target(masks)
     counts = ipm.fit("building", masks=masks, parts=masks, preset="panel5", discrete="enumerate",
                      ranges={"floors": [4, 10], "windows": [2, 6]}, fix=COUNTS_FIXED, seed=0, budget=400,
                      run_dir=out / "counts")

@@ -79,3 +79,30 @@ def _torch_threads(monkeypatch):
     monkeypatch.delenv("IPM_THREADS", raising=False)  # an in-process `ipm --threads N` sets it (ipm.threads.ask)
     torch.set_num_threads(1)
     yield
+
+
+def write_file(path: Path, content) -> Path:
+    """Write ``content`` to ``path`` (its folder made): bytes as they are, a string as text, anything else as
+    JSON. Returns ``path``."""
+    import json
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if isinstance(content, bytes):
+        path.write_bytes(content)
+    else:
+        path.write_text(content if isinstance(content, str) else json.dumps(content))
+    return path
+
+
+def tree_files(folder: Path) -> set[str]:
+    """The paths below ``folder``, relative to it (empty when it does not exist)."""
+    return {str(p.relative_to(folder)) for p in folder.rglob("*")} if folder.exists() else set()
+
+
+def refusal(case: str, code: int, stdout: str, err: str) -> str:
+    """The one line of a refused command (exit 2, one ``ipm: error:`` line on stderr, nothing on stdout), asserted."""
+    lines = err.strip().splitlines()
+    assert code == 2, f"{case}: exit {code}, stderr: {err}"
+    assert len(err.splitlines()) == 1 and lines[0].startswith("ipm: error: "), f"{case}: stderr: {err!r}"
+    assert "Traceback" not in err and stdout == "", f"{case}: stdout {stdout!r}"
+    return lines[0]

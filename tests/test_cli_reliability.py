@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import ROOT, real_path
+from conftest import ROOT, real_path, refusal, tree_files, write_file
 from conftest import run_cli as run
 
 MUG = "vessels/ocrtoc_mug.ply"
@@ -46,12 +46,6 @@ def _photo(folder: Path) -> Path:
     return path
 
 
-def _write(path: Path, content) -> Path:
-    if isinstance(content, bytes):
-        path.write_bytes(content)
-    else:
-        path.write_text(content if isinstance(content, str) else json.dumps(content))
-    return path
 
 
 def _experiment(tmp: Path, body: str, mesh: bool = False) -> Path:
@@ -60,7 +54,7 @@ def _experiment(tmp: Path, body: str, mesh: bool = False) -> Path:
     target = (f'[[targets]]\nname = "mug"\nmesh = "{real_path(MUG)}"\nup = "z"\n' if mesh else
               '[[targets]]\nname = "s"\ngenerator = "dishes"\npreset = "mug"\n')
     text = body.replace("TARGET", target)
-    return _write(tmp / "experiments" / "e.toml", text)
+    return write_file(tmp / "experiments" / "e.toml", text)
 
 
 GOOD_METHOD = '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nresolution = 16\n'
@@ -84,10 +78,10 @@ CASES = {
     "generate: params file missing": (lambda i, o: ["generate", "dishes", "--params", i / "none.json",
                                                     "-o", o / "m.obj"], "none.json"),
     "generate: params file binary": (lambda i, o: ["generate", "dishes", "--params",
-                                                   _write(i / "p.json", b"\x89PNG\x00\xff"), "-o", o / "m.obj"],
+                                                   write_file(i / "p.json", b"\x89PNG\x00\xff"), "-o", o / "m.obj"],
                                      "p.json"),
     "generate: params of another generator": (
-        lambda i, o: ["generate", "dishes", "--params", _write(i / "p.json", {"generator": "building",
+        lambda i, o: ["generate", "dishes", "--params", write_file(i / "p.json", {"generator": "building",
                                                                                 "params": {}}),
                       "-o", o / "m.obj"], "building"),
     "generate: negative seed": (lambda i, o: ["generate", "dishes", "--random", "--seed", "-1", "-o", o / "m.obj"],
@@ -95,13 +89,13 @@ CASES = {
     "generate: resolution too large": (lambda i, o: ["generate", "chair", "--resolution", "100000",
                                                      "-o", o / "m.obj"], "resolution"),
     "generate: unknown lod": (lambda i, o: ["generate", "dishes", "--lod", "ultra", "-o", o / "m.obj"], "ultra"),
-    "generate: output under a file": (lambda i, o: ["generate", "dishes", "-o", _write(i / "f.txt", "x") / "m.obj"],
+    "generate: output under a file": (lambda i, o: ["generate", "dishes", "-o", write_file(i / "f.txt", "x") / "m.obj"],
                                       "f.txt"),
     "generate: preview under a file": (lambda i, o: ["generate", "dishes", "-o", o / "m.obj", "--preview",
-                                                     _write(i / "f.txt", "x") / "p.png"], "f.txt"),
-    "generate: tree nested 500 deep": (lambda i, o: ["generate", _write(i / "deep.json", _nested_tree(500)),
+                                                     write_file(i / "f.txt", "x") / "p.png"], "f.txt"),
+    "generate: tree nested 500 deep": (lambda i, o: ["generate", write_file(i / "deep.json", _nested_tree(500)),
                                                      "-o", o / "m.obj"], "deep"),
-    "generate: unknown node type": (lambda i, o: ["generate", _write(i / "t.json", {"tree": {"node": "blob"}}),
+    "generate: unknown node type": (lambda i, o: ["generate", write_file(i / "t.json", {"tree": {"node": "blob"}}),
                                                   "-o", o / "m.obj"], "blob"),
     "generate: library folder missing": (lambda i, o: ["generate", "chair", "--library", i / "lib",
                                                        "-o", o / "m.obj"], "lib"),
@@ -120,24 +114,24 @@ CASES = {
     "jacobian: no cuda": (lambda i, o: ["jacobian", "chair", "--device", "cuda", "-o", o / "j.npz"], "cuda"),
     # render
     "render: mesh missing": (lambda i, o: ["render", i / "none.ply", "-o", o], "none.ply"),
-    "render: garbage stl": (lambda i, o: ["render", _write(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20),
+    "render: garbage stl": (lambda i, o: ["render", write_file(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20),
                                           "-o", o], "g.stl"),
     "render: size 0": (lambda i, o: ["render", "dishes", "--size", "0", "-o", o], "--size"),
     "render: size huge": (lambda i, o: ["render", "dishes", "--size", "100000", "-o", o], "--size"),
     "render: views 0": (lambda i, o: ["render", "dishes", "--views", "0", "-o", o], "--views"),
-    "render: empty camera list": (lambda i, o: ["render", "dishes", "--cameras", _write(i / "c.json", []),
+    "render: empty camera list": (lambda i, o: ["render", "dishes", "--cameras", write_file(i / "c.json", []),
                                                 "-o", o], "cameras"),
     "render: huge camera image": (lambda i, o: ["render", "dishes", "--cameras",
-                                                _write(i / "c.json", _cameras(100000, 100000)), "-o", o], "100000"),
+                                                write_file(i / "c.json", _cameras(100000, 100000)), "-o", o], "100000"),
     "render: binary cameras file": (lambda i, o: ["render", "dishes", "--cameras",
-                                                  _write(i / "c.json", b"\x00\xff\xfe"), "-o", o], "c.json"),
+                                                  write_file(i / "c.json", b"\x00\xff\xfe"), "-o", o], "c.json"),
     "render: bad up axis": (lambda i, o: ["render", real_path(MUG), "--up", "x", "-o", o], "--up"),
     "render: masks folder missing": (lambda i, o: ["render", "dishes", "--masks", i / "nomasks", "-o", o],
                                      "nomasks"),
-    "render: output is a file": (lambda i, o: ["render", "dishes", "-o", _write(i / "f.txt", "x")], "f.txt"),
+    "render: output is a file": (lambda i, o: ["render", "dishes", "-o", write_file(i / "f.txt", "x")], "f.txt"),
     # mask
     "mask: photo missing": (lambda i, o: ["mask", i / "none.jpg", "--box", "1,1,20,20", "-o", o / "m.png"], "none.jpg"),
-    "mask: not an image": (lambda i, o: ["mask", _write(i / "p.jpg", b"\x00\xffnot a jpeg"), "--box", "1,1,20,20",
+    "mask: not an image": (lambda i, o: ["mask", write_file(i / "p.jpg", b"\x00\xffnot a jpeg"), "--box", "1,1,20,20",
                                          "-o", o / "m.png"], "p.jpg"),
     "mask: box outside the photo": (lambda i, o: ["mask", _photo(i), "--box", "10,10,200,20", "-o", o / "m.png"],
                                     "box"),
@@ -158,11 +152,11 @@ CASES = {
     "fit: unknown local method": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--local",
                                                 "newton", "-o", o], "newton"),
     "fit: output is a file": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG),
-                                            "-o", _write(i / "f.txt", "x")], "f.txt"),
+                                            "-o", write_file(i / "f.txt", "x")], "f.txt"),
     "fit: resume a folder that is not a run": (lambda i, o: ["fit", "--resume", i], "run folder"),
     "fit: two targets": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--masks", i, "-o", o],
                          "exactly one target"),
-    "fit: garbage target mesh": (lambda i, o: ["fit", "dishes", "--target-mesh", _write(i / "g.obj", b"\x00\xff"),
+    "fit: garbage target mesh": (lambda i, o: ["fit", "dishes", "--target-mesh", write_file(i / "g.obj", b"\x00\xff"),
                                                "-o", o], "g.obj"),
     "fit: unknown fixed parameter": (lambda i, o: ["fit", "dishes", "--target-mesh", real_path(MUG), "--fix",
                                                    "colour=1", "-o", o], "colour"),
@@ -178,7 +172,7 @@ CASES = {
                               "none.ply"),
     # bench
     "bench: experiment missing": (lambda i, o: ["bench", i / "none.toml", "-o", o], "none.toml"),
-    "bench: binary experiment": (lambda i, o: ["bench", _write(i / "b.toml", b"\x89PNG\x00\xff\xfe"), "-o", o],
+    "bench: binary experiment": (lambda i, o: ["bench", write_file(i / "b.toml", b"\x89PNG\x00\xff\xfe"), "-o", o],
                                  "b.toml"),
     "bench: misspelled key": (lambda i, o: ["bench", _experiment(i, BASE + "budgt = 5\nTARGET" + GOOD_METHOD),
                                             "-o", o], "budgt"),
@@ -200,7 +194,7 @@ CASES = {
     "bench: no workers": (lambda i, o: ["bench", _experiment(i, BASE + "TARGET" + GOOD_METHOD), "--workers", "0",
                                         "-o", o], "--workers"),
     "bench: output is a file": (lambda i, o: ["bench", _experiment(i, BASE + "TARGET" + GOOD_METHOD),
-                                              "-o", _write(i / "f.txt", "x")], "f.txt"),
+                                              "-o", write_file(i / "f.txt", "x")], "f.txt"),
     "bench: dry run checks settings": (lambda i, o: ["bench", _experiment(i, BASE + "TARGET" + GOOD_METHOD.replace(
                                                          "resolution = 16", "resolution = -3")), "--dry-run",
                                                      "-o", o], "resolution"),
@@ -209,25 +203,17 @@ CASES = {
 }
 
 
-def _files(folder: Path) -> set[str]:
-    return {str(p.relative_to(folder)) for p in folder.rglob("*")} if folder.exists() else set()
-
-
 @pytest.mark.parametrize("case", sorted(CASES))
 def test_bad_input_exits_2_with_one_line_and_leaves_nothing(case, tmp_path, capsys):
     make, word = CASES[case]
     i, o = tmp_path / "in", tmp_path / "out"
     i.mkdir()
     args = make(i, o)
-    inputs = _files(i)
-    code, stdout, err = run(args, capsys)
-    lines = err.strip().splitlines()
-    assert code == 2, f"{case}: exit {code}, stderr: {err}"
-    assert len(lines) == 1 and lines[0].startswith("ipm: error: "), f"{case}: stderr: {err!r}"
-    assert word.lower() in lines[0].lower(), f"{case}: {lines[0]!r} does not name {word!r}"
-    assert stdout == ""
-    assert not _files(o), f"{case}: left behind {sorted(_files(o))}"
-    assert _files(i) == inputs, f"{case}: left behind {sorted(_files(i) - inputs)}"
+    inputs = tree_files(i)
+    line = refusal(case, *run(args, capsys))
+    assert word.lower() in line.lower(), f"{case}: {line!r} does not name {word!r}"
+    assert not tree_files(o), f"{case}: left behind {sorted(tree_files(o))}"
+    assert tree_files(i) == inputs, f"{case}: left behind {sorted(tree_files(i) - inputs)}"
 
 
 def test_the_table_covers_every_command():
@@ -275,7 +261,7 @@ def test_a_failing_check_exits_nonzero(tmp_path, capsys, monkeypatch):
 
 def test_warnings_reach_stderr(tmp_path, capsys):
     """Library warnings are shown (logging is configured); -q hides them."""
-    cams = _write(tmp_path / "c.json", _cameras(32, 32, 2))
+    cams = write_file(tmp_path / "c.json", _cameras(32, 32, 2))
     data = json.loads(cams.read_text())
     data[0]["eye"] = [0.0, 0.0, 10.0]
     data[0]["target"] = [10.0, 0.0, 0.0]  # 45 degrees off the object, FOV 40: an empty mask

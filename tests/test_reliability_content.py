@@ -21,20 +21,13 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import real_path
+from conftest import real_path, refusal, write_file
 from conftest import run_cli as run
 
 MUG = "vessels/ocrtoc_mug.ply"
 HUGE = "99999999999999999999999"
 
 
-def _write(path: Path, content) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if isinstance(content, bytes):
-        path.write_bytes(content)
-    else:
-        path.write_text(content if isinstance(content, str) else json.dumps(content))
-    return path
 
 
 def _png_header(width: int, height: int) -> bytes:
@@ -49,7 +42,7 @@ def _png_header(width: int, height: int) -> bytes:
 
 def _bomb(path: Path) -> Path:
     """A 400-megapixel PNG (20000 x 20000) of 65 bytes."""
-    return _write(path, _png_header(20000, 20000))
+    return write_file(path, _png_header(20000, 20000))
 
 
 def _photo(path: Path, size=(48, 64)) -> Path:
@@ -76,7 +69,7 @@ def _mask_set(folder: Path, view: bytes | None = None) -> Path:
         Image.fromarray((((yy - 16) ** 2 + (xx - 16) ** 2 < 64) * 255).astype(np.uint8)).save(folder / "view_000.png")
     else:
         (folder / "view_000.png").write_bytes(view)
-    _write(folder / "cameras.json", [_camera()])
+    write_file(folder / "cameras.json", [_camera()])
     return folder
 
 
@@ -85,10 +78,10 @@ def _chain(folder: Path, n: int, prefix: str = "chain") -> Path:
     tree file using the first; returns the tree file."""
     for k in range(n):
         body = {"node": f"{prefix}{k + 1}"} if k < n - 1 else {"node": "sphere", "params": {"radius": 0.5}}
-        _write(folder / "lib" / f"{prefix}{k:04d}.json",
+        write_file(folder / "lib" / f"{prefix}{k:04d}.json",
                {"name": f"{prefix}{k}", "params": [{"name": "r", "default": 0.5, "lo": 0.1, "hi": 1.0}],
                 "tree": body})
-    return _write(folder / "tree.json", {"tree": {"node": f"{prefix}0"}})
+    return write_file(folder / "tree.json", {"tree": {"node": f"{prefix}0"}})
 
 
 def _macro(folder: Path, **change) -> Path:
@@ -101,12 +94,12 @@ def _macro(folder: Path, **change) -> Path:
             spec.pop(k)
         else:
             spec[k] = v
-    _write(folder / "lib" / "m.json", spec)
+    write_file(folder / "lib" / "m.json", spec)
     return folder / "lib"
 
 
 def _experiment(folder: Path, text: str) -> Path:
-    return _write(folder / "experiments" / "e.toml", 'name = "e"\nbudget = 2\nsize = 64\nheldout_size = 64\n'
+    return write_file(folder / "experiments" / "e.toml", 'name = "e"\nbudget = 2\nsize = 64\nheldout_size = 64\n'
                   'samples = 200\n' + text + '\n[[targets]]\nname = "s"\ngenerator = "dishes"\npreset = "mug"\n'
                   '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nresolution = 16\n')
 
@@ -138,15 +131,15 @@ def _nested_text(depth: int, open_: str, close: str, inner: str = "") -> str:
 
 def _circle(folder: Path) -> Path:
     """Two macro files using each other, and a tree file using one."""
-    _write(folder / "lib" / "a.json", {"name": "ca", "params": [], "tree": {"node": "cb"}})
-    _write(folder / "lib" / "b.json", {"name": "cb", "params": [], "tree": {"node": "ca"}})
-    return _write(folder / "t.json", {"tree": {"node": "ca"}})
+    write_file(folder / "lib" / "a.json", {"name": "ca", "params": [], "tree": {"node": "cb"}})
+    write_file(folder / "lib" / "b.json", {"name": "cb", "params": [], "tree": {"node": "ca"}})
+    return write_file(folder / "t.json", {"tree": {"node": "ca"}})
 
 
 def _deep_cameras(folder: Path) -> Path:
     """A mask set whose cameras.json nests 50,000 deep."""
     _mask_set(folder)
-    _write(folder / "cameras.json", _nested_text(50000, '{"cameras": [', "]}"))
+    write_file(folder / "cameras.json", _nested_text(50000, '{"cameras": [', "]}"))
     return folder
 
 
@@ -160,7 +153,7 @@ CASES = {
         lambda i, o: ["generate", _circle(i), "--library", i / "lib", "-o", o / "m.obj"],
         ("a.json", "circle", "ca uses cb uses ca")),
     "render: cameras.json nested 50,000 deep": (
-        lambda i, o: ["render", "dishes", "--cameras", _write(i / "c.json", _nested_text(50000, "[", "]")),
+        lambda i, o: ["render", "dishes", "--cameras", write_file(i / "c.json", _nested_text(50000, "[", "]")),
                       "-o", o], ("c.json", "at most 4 deep", "50000")),
     "fit: a mask set's cameras.json nested 50,000 deep": (
         lambda i, o: ["fit", "dishes", "--masks", _deep_cameras(i / "m"), "-o", o], ("cameras.json", "at most 4 deep")),
@@ -190,7 +183,7 @@ CASES = {
         ("--seed", "2147483647")),
     "generate: 1e400 in a params file": (
         lambda i, o: ["generate", "dishes", "--params",
-                      _write(i / "p.json", '{"generator": "dishes", "params": {"height": 1e400}}'), "-o", o / "m.obj"],
+                      write_file(i / "p.json", '{"generator": "dishes", "params": {"height": 1e400}}'), "-o", o / "m.obj"],
         ("p.json", "'height'", "1e400", "1.8e308")),
     "generate: --set height=1e400": (
         lambda i, o: ["generate", "dishes", "--set", "height=1e400", "-o", o / "m.obj"],
@@ -198,11 +191,11 @@ CASES = {
     "generate: --set floors=1e400 (an integer parameter)": (
         lambda i, o: ["generate", "building", "--set", "floors=1e400", "-o", o / "m.obj"], ("'floors'", "1e400")),
     "generate: a 400-digit integer in a tree file": (
-        lambda i, o: ["generate", _write(i / "t.json", '{"tree": {"node": "sphere", "params": {"radius": 1'
+        lambda i, o: ["generate", write_file(i / "t.json", '{"tree": {"node": "sphere", "params": {"radius": 1'
                                          + "0" * 400 + "}}}"), "-o", o / "m.obj"],
         ("t.json", "'radius'", "401 characters")),
     "generate: a 5000-digit integer in a params file": (
-        lambda i, o: ["generate", "dishes", "--params", _write(i / "p.json", '{"params": {"height": 1'
+        lambda i, o: ["generate", "dishes", "--params", write_file(i / "p.json", '{"params": {"height": 1'
                                                              + "0" * 5000 + "}}"), "-o", o / "m.obj"],
         ("p.json", "'height'", "1.8e308")),
     "bench: a seed beyond the range": (
@@ -214,11 +207,11 @@ CASES = {
     "vectorize: a 400-megapixel drawing": (
         lambda i, o: ["vectorize", _bomb(i / "big.png"), "-o", o / "v.svg"], ("big.png", "89,478,485 pixels")),
     "fit: a 400-megapixel --shape image": (
-        lambda i, o: ["fit", _write(i / "t.json", {"tree": {"node": "circle"}}), "--shape", _bomb(i / "big.png"),
+        lambda i, o: ["fit", write_file(i / "t.json", {"tree": {"node": "circle"}}), "--shape", _bomb(i / "big.png"),
                       "-o", o], ("big.png", "89,478,485 pixels")),
     "fit: a 100-megapixel --shape image (Pillow only warns)": (
-        lambda i, o: ["fit", _write(i / "t.json", {"tree": {"node": "circle"}}), "--shape",
-                      _write(i / "big.png", _png_header(10000, 10000)), "-o", o], ("big.png", "100,000,000")),
+        lambda i, o: ["fit", write_file(i / "t.json", {"tree": {"node": "circle"}}), "--shape",
+                      write_file(i / "big.png", _png_header(10000, 10000)), "-o", o], ("big.png", "100,000,000")),
     "fit: a 400-megapixel photo": (
         lambda i, o: ["fit", "dishes", "--image", _bomb(i / "big.png"), "--box", "1,1,20,20", "-o", o],
         ("big.png", "89,478,485 pixels")),
@@ -257,7 +250,7 @@ CASES = {
                       (np.save(i / "W.npy", np.zeros((3, 4))), i / "W.npy")[1], "-o", o / "x.obj"],
         ("W.npy", "single array", "train-subdivision")),
     "subdivide: a text file as neural weights": (
-        lambda i, o: ["subdivide", real_path(MUG), "--method", "neural", "--weights", _write(i / "w.npz", "hello"),
+        lambda i, o: ["subdivide", real_path(MUG), "--method", "neural", "--weights", write_file(i / "w.npz", "hello"),
                       "-o", o / "x.obj"], ("w.npz", "plain arrays")),
     "subdivide: weights declaring 75 GB": (
         lambda i, o: ["subdivide", real_path(MUG), "--method", "neural", "--weights", _big_npz(i / "w.npz"),
@@ -267,32 +260,32 @@ CASES = {
         lambda i, o: ["train-subdivision", "--real", _fin(i / "fin.ply"), "--no-procedural", "--steps", "2",
                       "-o", o / "w.npz"], ("fin.ply", "non-manifold")),
     "train-subdivision: a garbage --real stl": (
-        lambda i, o: ["train-subdivision", "--real", _write(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20),
+        lambda i, o: ["train-subdivision", "--real", write_file(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20),
                       "--no-procedural", "--steps", "2", "-o", o / "w.npz"], ("g.stl", ".ply, .obj")),
     # 7. booleans, camera keys, an unreadable STL
     "generate: true for a float parameter in a params file": (
-        lambda i, o: ["generate", "dishes", "--params", _write(i / "p.json", {"params": {"height": True}}),
+        lambda i, o: ["generate", "dishes", "--params", write_file(i / "p.json", {"params": {"height": True}}),
                       "-o", o / "m.obj"], ("'height'", "true")),
     "generate: true for a float parameter in a tree file": (
-        lambda i, o: ["generate", _write(i / "t.json", {"tree": {"node": "sphere", "params": {"radius": True}}}),
+        lambda i, o: ["generate", write_file(i / "t.json", {"tree": {"node": "sphere", "params": {"radius": True}}}),
                       "-o", o / "m.obj"], ("t.json", "'radius'", "true")),
     "generate: false for an integer parameter in a flat tree file": (
-        lambda i, o: ["generate", _write(i / "t.json", {"structure": ["mirror", "sphere"], "params": [False, 0.0, 0.5]}),
+        lambda i, o: ["generate", write_file(i / "t.json", {"structure": ["mirror", "sphere"], "params": [False, 0.0, 0.5]}),
                       "-o", o / "m.obj"], ("t.json", "'axis'", "false")),
     "generate: true for a float parameter in a mesh tree file": (
-        lambda i, o: ["generate", _write(i / "t.json", {"generator": "meshtree", "tree": {
+        lambda i, o: ["generate", write_file(i / "t.json", {"generator": "meshtree", "tree": {
             "node": "box", "params": {"size_x": True}}}), "-o", o / "m.obj"], ("'size_x'", "true")),
     "render: an unknown key in cameras.json": (
-        lambda i, o: ["render", "dishes", "--cameras", _write(i / "c.json", [{**_camera(), "colour": 1}]), "-o", o],
+        lambda i, o: ["render", "dishes", "--cameras", write_file(i / "c.json", [{**_camera(), "colour": 1}]), "-o", o],
         ("c.json", "'colour'", "allowed: eye, target, up, fov_deg, width, height, cx, cy")),
     "render: an unknown key beside cameras": (
-        lambda i, o: ["render", "dishes", "--cameras", _write(i / "c.json", {"cameras": [_camera()], "fov": 3}),
+        lambda i, o: ["render", "dishes", "--cameras", write_file(i / "c.json", {"cameras": [_camera()], "fov": 3}),
                       "-o", o], ("c.json", "'fov'")),
     "render: garbage stl": (
-        lambda i, o: ["render", _write(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20), "-o", o],
+        lambda i, o: ["render", write_file(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20), "-o", o],
         ("g.stl", ".ply, .obj, .stl, .glb, .gltf, .off")),
     "subdivide: garbage stl": (
-        lambda i, o: ["subdivide", _write(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20), "-o", o / "x.obj"],
+        lambda i, o: ["subdivide", write_file(i / "g.stl", b"solid \x00\xff\xfe garbage\x01" * 20), "-o", o / "x.obj"],
         ("g.stl", ".ply, .obj, .stl")),
 }
 
@@ -303,7 +296,7 @@ def _files(folder: Path) -> dict[str, bytes]:
 
 
 def _macro_list_case(i: Path, o: Path) -> list:
-    _write(i / "lib" / "m.json", [1, 2])
+    write_file(i / "lib" / "m.json", [1, 2])
     return ["generate", "chair", "--library", i / "lib", "-o", o / "m.obj"]
 
 
@@ -317,14 +310,10 @@ def test_hostile_content_exits_2_with_one_line_and_leaves_nothing(case, tmp_path
     i.mkdir()
     args = make(i, o)
     inputs = _files(i)
-    code, stdout, err = run(args, capsys)
-    lines = err.strip().splitlines()
-    assert code == 2, f"{case}: exit {code}, stderr: {err}"
-    assert len(err.splitlines()) == 1 and lines[0].startswith("ipm: error: "), f"{case}: stderr: {err!r}"
+    line = refusal(case, *run(args, capsys))
     for word in words:
-        assert word.lower() in lines[0].lower(), f"{case}: {lines[0]!r} does not name {word!r}"
-    assert "charset_normalizer" not in lines[0] and "Traceback" not in err
-    assert stdout == ""
+        assert word.lower() in line.lower(), f"{case}: {line!r} does not name {word!r}"
+    assert "charset_normalizer" not in line
     assert not _files(o) and not o.exists(), f"{case}: left behind {sorted(_files(o))}"
     assert _files(i) == inputs, f"{case}: changed its inputs"
 
@@ -350,7 +339,7 @@ def test_a_macro_chain_at_the_depth_limit_works_and_a_refused_library_registers_
         assert float(d) == pytest.approx(-0.5)
         lo, hi = tree.bounds()
         assert hi[0] == pytest.approx(0.5, abs=0.05)
-        deeper = _write(tmp_path / "deeper.json", {"tree": {"node": "translate", "children": [{"node": "okchain0"}]}})
+        deeper = write_file(tmp_path / "deeper.json", {"tree": {"node": "translate", "children": [{"node": "okchain0"}]}})
         with pytest.raises(InputError, match=rf"deeper.json: expected a tree at most {MAX_DEPTH} levels deep .*"
                                              rf"got {MAX_DEPTH + 1} levels \(through the macro okchain0"):
             load_tree(deeper)
@@ -369,9 +358,9 @@ def test_macro_files_load_in_the_order_of_their_use(tmp_path):
     from ipm.sdf.complex import load_library
     from ipm.sdf.node import NODES
 
-    _write(tmp_path / "a.json", {"name": "ord_top", "params": [], "tree": {"node": "ord_mid"}})
-    _write(tmp_path / "b.json", {"name": "ord_mid", "params": [], "tree": {"node": "ord_leaf"}})
-    _write(tmp_path / "c.json", {"name": "ord_leaf", "params": [], "tree": {"node": "sphere"}})
+    write_file(tmp_path / "a.json", {"name": "ord_top", "params": [], "tree": {"node": "ord_mid"}})
+    write_file(tmp_path / "b.json", {"name": "ord_mid", "params": [], "tree": {"node": "ord_leaf"}})
+    write_file(tmp_path / "c.json", {"name": "ord_leaf", "params": [], "tree": {"node": "sphere"}})
     added = load_library([tmp_path])
     try:
         assert added == ["ord_leaf", "ord_mid", "ord_top"]
@@ -391,13 +380,13 @@ def test_numbers_in_json_beyond_a_double_are_refused_naming_the_key(tmp_path):
     from ipm.errors import InputError
     from ipm.files import read_json
 
-    assert read_json(_write(tmp_path / "ok.json", '{"a": 1.7e308, "b": -12345678901234567890, "c": [1e-400]}')) \
+    assert read_json(write_file(tmp_path / "ok.json", '{"a": 1.7e308, "b": -12345678901234567890, "c": [1e-400]}')) \
         == {"a": 1.7e308, "b": -12345678901234567890, "c": [0.0]}
     with pytest.raises(InputError, match=r"x.json: key 'a': expected a number of magnitude at most 1.8e308 .*"
                                          r"got -1e400$"):
-        read_json(_write(tmp_path / "x.json", '{"b": 1, "a": -1e400}'))
+        read_json(write_file(tmp_path / "x.json", '{"b": 1, "a": -1e400}'))
     with pytest.raises(InputError, match=r"y.json: expected a number .* got 1e999$"):
-        read_json(_write(tmp_path / "y.json", "[1, 1e999]"))
+        read_json(write_file(tmp_path / "y.json", "[1, 1e999]"))
 
 
 def test_booleans_are_numbers_only_for_switches():
@@ -468,4 +457,4 @@ def test_intrinsics_yaml_nested_too_deep_is_refused(tmp_path):
     from ipm.render.camera import load_intrinsics
 
     with pytest.raises(InputError, match=r"deep.yaml: expected a flat mapping of intrinsics, got YAML nested too deep"):
-        load_intrinsics(_write(tmp_path / "deep.yaml", _nested_text(50000, "[", "]")))
+        load_intrinsics(write_file(tmp_path / "deep.yaml", _nested_text(50000, "[", "]")))

@@ -24,14 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import run_cli as run
-
-
-def _write(path: Path, content) -> Path:
-    if isinstance(content, bytes):
-        path.write_bytes(content)
-    else:
-        path.write_text(content if isinstance(content, str) else json.dumps(content))
-    return path
+from conftest import write_file
 
 
 def _photo(folder: Path) -> Path:
@@ -62,7 +55,7 @@ def _png_header(path: Path, width: int, height: int) -> Path:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
 
     ihdr = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
-    return _write(path, b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 16))
+    return write_file(path, b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 16))
                   + chunk(b"IEND", b""))
 
 
@@ -89,8 +82,8 @@ def _box_obj(folder: Path) -> Path:
 def _earlier_render(folder: Path) -> Path:
     """A folder holding what looks like an earlier render (any files do: render refuses a non-empty folder)."""
     folder.mkdir()
-    _write(folder / "view_000.png", b"old")
-    _write(folder / "cameras.json", "[]")
+    write_file(folder / "view_000.png", b"old")
+    write_file(folder / "cameras.json", "[]")
     return folder
 
 
@@ -108,7 +101,7 @@ CASES = {
     "render: 5 views of 8192^2": (lambda i, o: ["render", "dishes", "--views", "5", "--size", "8192", "-o", o],
                                   "at most 4 views", RENDER_WORK),
     "render: cameras file totalling too many pixels": (
-        lambda i, o: ["render", "dishes", "--cameras", _write(i / "c.json", _cameras(8192, 8192, 5)), "-o", o],
+        lambda i, o: ["render", "dishes", "--cameras", write_file(i / "c.json", _cameras(8192, 8192, 5)), "-o", o],
         "268,435,456", RENDER_WORK),
     "jacobian: loop subdivision 6 levels": (
         lambda i, o: ["jacobian", "dishes", "--subdivide", "loop", "--levels", "6", "-o", o / "j.npz"],
@@ -265,8 +258,8 @@ def full(tmp_path, monkeypatch) -> Path:
 
 def _existing_mesh(folder: Path) -> Path:
     folder.mkdir()
-    _write(folder / "existing.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
-    _write(folder / "existing.params.json", '{"generator": "earlier"}\n')
+    write_file(folder / "existing.obj", "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    write_file(folder / "existing.params.json", '{"generator": "earlier"}\n')
     return folder / "existing.obj"
 
 
@@ -283,7 +276,7 @@ FULL_CASES = {
     "convert: mesh on a full disk keeps the existing result": (
         lambda i, o, k, F: ["convert", _box_obj(i), "--to", "bsp", "--planes", "4", "--convexes", "1", "--steps", "2",
                             "--resolution", "16", "--mesh", F / "new" / "c.obj",
-                            "-o", _write(_existing_mesh(k).with_name("c.json"), "{}")], "c.obj"),
+                            "-o", write_file(_existing_mesh(k).with_name("c.json"), "{}")], "c.obj"),
     "render: a full disk": (lambda i, o, k, F: ["render", "dishes", "--views", "2", "--size", "32", "-o", F / "r"],
                             "view_000.png"),
     "render: a full disk under new folders": (
@@ -340,7 +333,7 @@ def test_render_overwrite_replaces_the_earlier_render_as_a_whole(tmp_path, capsy
     first = _files(out)
     assert {"view_002.png", "part_002.png", "parts.json", "depth_002.npy", "normal_002.png",
             "preview_002.png"} <= set(first)
-    _write(out / "notes.txt", "mine")
+    write_file(out / "notes.txt", "mine")
     code, _, err = run(["render", "dishes", "--preset", "mug", "--views", "1", "--size", "32", "-o", out], capsys)
     assert code == 2 and "--overwrite" in err
     assert _files(out) == {**first, "notes.txt": b"mine"}
