@@ -19,6 +19,7 @@ from __future__ import annotations
 import datetime as dt
 import json
 import platform
+import re
 import sys
 import tempfile
 import time
@@ -224,6 +225,7 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
         row.update(target=name, equivalent=signature(tree) == signature(truth),
                    truth_nodes=count_nodes(truth))
         rows.append(row)
+        write_tree(out_dir, name, tree)
         rows.append({"target": name, **bsp_row(target, NODE_BUDGET)})
         rows.append({"target": name, **grid_row(target, GRID ** 3)})
         write(out_dir, rows, quick)
@@ -234,8 +236,9 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
 
         target = preset_sample(preset, 0)
         name = f"{preset} tree, sizes x0.7-1.3"
-        row, _ = search_row(target, BUDGET // (4 if quick else 1))
+        row, tree = search_row(target, BUDGET // (4 if quick else 1))
         rows.append({"target": name, **row})
+        write_tree(out_dir, name, tree)
         with tempfile.TemporaryDirectory() as tmp:
             export_mesh(target, Path(tmp) / "t.obj", sidecar=False)
             rows.append({"target": name, **fixed_row(preset, Path(tmp) / "t.obj", "y")})
@@ -246,8 +249,9 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
               f"fixed {rows[-3]['heldout_iou']:.3f}", file=sys.stderr, flush=True)
     for name, rel, up, fixed in FURNITURE[:1] if quick else FURNITURE:
         target = load_mesh(DATA / rel, up=up)
-        row, _ = search_row(target, BUDGET // (4 if quick else 1))
+        row, tree = search_row(target, BUDGET // (4 if quick else 1))
         rows.append({"target": name, **row})
+        write_tree(out_dir, name, tree)
         rows.append({"target": name, **fixed_row(fixed, DATA / rel, up)})
         rows.append({"target": name, **bsp_row(target, NODE_BUDGET)})
         rows.append({"target": name, **grid_row(target, GRID ** 3)})
@@ -256,6 +260,18 @@ def run(out_dir: Path, quick: bool = False) -> list[dict]:
               f"fixed {rows[-3]['heldout_iou']:.3f}", file=sys.stderr, flush=True)
     write(out_dir, rows, quick)
     return rows
+
+
+def write_tree(out_dir: Path, target: str, tree: dict) -> Path:
+    """Keep a searched tree as a tree file (``trees/<target>.json``, nested JSON): ``ipm generate`` meshes it and
+    exports it as a program (OpenSCAD, CadQuery)."""
+    from ipm.files import write_text
+
+    slug = re.sub(r"[^a-z0-9]+", "_", target.lower()).strip("_")
+    path = out_dir / "trees" / f"{slug}.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text(path, json.dumps({"tree": tree}, indent=1) + "\n")
+    return path
 
 
 def _f(v, fmt="{:.3f}"):
@@ -294,6 +310,8 @@ def write(out_dir: Path, rows: list[dict], quick: bool) -> None:
         "grid's spacing).",
         "- equivalent: the recovered tree has the truth's primitives up to order (the kinds that add and the "
         "kinds that cut).",
+        "- The searched trees are kept in `trees/`, one nested JSON tree file per target (`ipm generate "
+        "trees/<target>.json -o x.obj`).",
         "- The egg chair of the furniture folder is left out: its faces are unwelded and inconsistently oriented, "
         "its winding number is about 0 everywhere, so no point is inside it (a mesh target needs an inside; "
         "`ipm fit --structure search` says so and points to masks).", "",
