@@ -18,11 +18,27 @@ from __future__ import annotations
 import importlib
 import pkgutil
 from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Generic, TypeVar
 
 from ipm.errors import InputError
 
 T = TypeVar("T")
+
+# the plug-in being imported (a file or an entry point): a name it takes twice is the plug-in's fault, bad input
+# naming it, not a bug of ipm's
+_PLUGIN: ContextVar[str | None] = ContextVar("ipm_plugin", default=None)
+
+
+@contextmanager
+def loading_plugin(source: str):
+    """Within this block, registering a name that is taken is an :class:`InputError` naming ``source``."""
+    token = _PLUGIN.set(source)
+    try:
+        yield
+    finally:
+        _PLUGIN.reset(token)
 
 
 class Registry(Generic[T]):
@@ -31,13 +47,17 @@ class Registry(Generic[T]):
     kind: what a member is, for messages ("node type", "generator").
     packages: dotted package names whose modules are imported (all of them, recursively, except
         modules whose name starts with ``_``) before the first lookup.
+    after: run once after the packages are imported, on the first lookup: members from outside the package
+        (plug-ins: :mod:`ipm.generators.plugins`).
     """
 
-    def __init__(self, kind: str, packages: Sequence[str] = ()):
+    def __init__(self, kind: str, packages: Sequence[str] = (), after: Callable[[], None] | None = None):
         self.kind = kind
         self.packages = list(packages)
+        self.after = after
         self._members: dict[str, T] = {}
         self._discovered: set[str] = set()
+        self._after_done = False
 
     # -- registering ---------------------------------------------------------------------------
     def add(self, name: str, member: T) -> T:
@@ -46,6 +66,9 @@ class Registry(Generic[T]):
             raise TypeError(f"{self.kind}: names are non-empty strings, got {name!r}")
         old = self._members.get(name)
         if old is not None and old is not member and not _same_definition(old, member):
+            if _PLUGIN.get() is not None:
+                raise InputError(f"{_PLUGIN.get()}: {self.kind} {name!r} is taken by {_where(old)}; give yours "
+                                 "another name")
             raise RuntimeError(f"{self.kind} {name!r} is registered twice ({_where(old)} and {_where(member)})")
         self._members[name] = member
         return member
@@ -66,7 +89,7 @@ class Registry(Generic[T]):
 
     # -- looking up ----------------------------------------------------------------------------
     def discover(self) -> None:
-        """Import every module of the registry's packages (once per package)."""
+        """Import every module of the registry's packages (once per package), then run ``after`` (once)."""
         for pkg_name in self.packages:
             if pkg_name in self._discovered:
                 continue
@@ -75,6 +98,18 @@ class Registry(Generic[T]):
             for info in pkgutil.walk_packages(getattr(pkg, "__path__", []), prefix=pkg_name + "."):
                 if not info.name.rsplit(".", 1)[-1].startswith("_"):
                     importlib.import_module(info.name)
+        if self.after is not None and not self._after_done:
+            self._after_done = True
+            self.after()
+
+    @property
+    def discovered(self) -> bool:
+        """Whether the first lookup has happened (the packages imported and ``after`` run)."""
+        return self._after_done or (self.after is None and set(self.packages) <= self._discovered)
+
+    def current(self) -> dict[str, T]:
+        """The members registered so far, without discovering (for code that runs during discovery)."""
+        return dict(self._members)
 
     def get(self, name: str) -> T:
         """The member called ``name``; :class:`InputError` lists the known names."""

@@ -47,6 +47,9 @@ def _options(
         "torch CPU threads (default: $IPM_THREADS, else 1), used as far as cores are idle. With one thread a "
         "run is bit-identical for the same inputs, seed and settings (also across --resume); more threads "
         "change results within the fits' tolerance, not bit for bit"), show_default=False)] = None,
+    plugin: Annotated[list[str] | None, typer.Option("--plugin", metavar="FILE.py", help=(
+        "load generators from a Python file of yours (repeatable; also $IPM_PLUGINS): every command can then "
+        "use them by name. docs/plugins.md shows how to write one"), show_default=False)] = None,
 ) -> None:
     """Inverse procedural modeling: differentiable generators, Jacobians, silhouettes, fitting."""
     from ipm import threads as T
@@ -55,6 +58,10 @@ def _options(
     _STATE["debug"] = debug
     setup_logging("debug" if verbose else "error" if quiet else "info")
     T.ask(threads)
+    if plugin:
+        from ipm.generators.plugins import add_files
+
+        add_files(plugin)
 
 
 for _name in COMMANDS:
@@ -75,20 +82,21 @@ def _click_exceptions(attr: str) -> tuple[type, ...]:
 
 
 _GLOBAL_FLAGS = {"-v", "--verbose", "-q", "--quiet", "--debug"}
+_GLOBAL_OPTIONS = ("--threads", "--plugin")  # global options that take a value
 
 
 def _global_first(argv: list[str]) -> list[str]:
-    """Move the global options (``-v``, ``-q``, ``--debug``, ``--threads N``) in front of the command, so
-    they may be written anywhere on the line (``ipm fit ... -v``); ``--`` ends the scan."""
+    """Move the global options (``-v``, ``-q``, ``--debug``, ``--threads N``, ``--plugin FILE``) in front of the
+    command, so they may be written anywhere on the line (``ipm fit ... -v``); ``--`` ends the scan."""
     front, rest, i = [], [], 0
     while i < len(argv):
         a = argv[i]
         if a == "--":
             rest += argv[i:]
             break
-        if a in _GLOBAL_FLAGS or a.startswith("--threads="):
+        if a in _GLOBAL_FLAGS or a.startswith(tuple(o + "=" for o in _GLOBAL_OPTIONS)):
             front.append(a)
-        elif a == "--threads" and i + 1 < len(argv):
+        elif a in _GLOBAL_OPTIONS and i + 1 < len(argv):
             front += argv[i:i + 2]
             i += 1
         else:

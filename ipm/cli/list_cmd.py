@@ -50,13 +50,14 @@ def _registry(what: str) -> list[dict]:
 
 def _generators() -> list[dict]:
     from ipm.generators import all_generators
+    from ipm.generators.plugins import SOURCES
 
     out = []
     for name, factory in sorted(all_generators().items()):
         g = factory()
         out.append({"name": name, "kind": g.kind, "continuous": g.spec.n_continuous,
                     "discrete": len(g.spec.discrete), "presets": sorted(g.presets),
-                    "description": g.description})
+                    "description": g.description, "source": SOURCES.get(name, "ipm")})
     return out
 
 

@@ -22,7 +22,8 @@ from ipm.params import ParamSpec, Value
 from ipm.registry import Registry
 from ipm.types import TriMesh
 
-# Generators by name (a factory each), found in the modules of this package
+# Generators by name (a factory each), found in the modules of this package, then in plug-ins (the registry's
+# ``after`` hook, which ipm.generators.plugins sets when discovery imports it)
 GENERATORS: Registry[Callable[[], Generator]] = Registry("generator", packages=["ipm.generators"])
 # Readers of generator files, by the file's ``"generator"`` field (SDF tree files may omit it: "sdftree")
 FILE_FORMATS: Registry[Callable[[str], Generator]] = Registry("generator file format", packages=["ipm.generators"])
@@ -141,7 +142,8 @@ def get_generator(name: str, *, library: list[str] | None = None) -> Generator:
             return family.load(name)
     shapes = sorted({n for f in families for n in f.names()})
     raise InputError(f"unknown generator {name!r}; registered: {', '.join(GENERATORS.names())}; "
-                     f"named shapes: {', '.join(shapes)}; or pass a generator file (.json)")
+                     f"named shapes: {', '.join(shapes)}; or pass a generator file (.json), or load the plug-in "
+                     "that defines it (ipm --plugin FILE.py, or IPM_PLUGINS)")
 
 
 def _declared_generator(path: str) -> str | None:

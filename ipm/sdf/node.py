@@ -40,30 +40,13 @@ def P(name: str, default: float, lo: float = LEN[0], hi: float = LEN[1], doc: st
     return Param(name, default, lo, hi, "float", doc)
 
 
-class NodeRegistry(Registry):
-    """A registry that, after importing its packages, runs ``after`` hooks (``"module:function"``):
-    the shipped macro nodes are built from the other node types, so they come last."""
-
-    def __init__(self, kind: str, packages: Sequence[str] = (), after: Sequence[str] = ()):
-        super().__init__(kind, packages)
-        self.after = list(after)
-        self._running = False
-
-    def discover(self) -> None:
-        """Imports the packages, then, the first time any package is new, runs the ``after`` hooks (not re-entrant)."""
-        fresh = any(p not in self._discovered for p in self.packages)
-        super().discover()
-        if fresh and not self._running:
-            self._running = True
-            try:
-                for hook in self.after:
-                    mod, _, fn = hook.partition(":")
-                    getattr(importlib.import_module(mod), fn)()
-            finally:
-                self._running = False
+def _macro_nodes() -> None:
+    """The shipped macro nodes are built from the other node types, so they are loaded after them (by name:
+    :mod:`ipm.sdf.complex` imports this module)."""
+    importlib.import_module("ipm.sdf.complex").load_library()
 
 
-NODES: NodeRegistry = NodeRegistry("node type", packages=["ipm.sdf.nodes"], after=["ipm.sdf.complex:load_library"])
+NODES: Registry = Registry("node type", packages=["ipm.sdf.nodes"], after=_macro_nodes)
 register = NODES.register()
 
 
