@@ -257,3 +257,15 @@ def test_cli_warns_about_fallback_nodes(tmp_path, capsys):
                              capsys)
     lines = err.strip().splitlines()
     assert code == 0 and len(lines) == 1 and lines[0].startswith("ipm: warning:") and "soft" in lines[0]
+
+
+def test_a_refused_fallback_mesh_makes_the_whole_tree_marching_cubes(monkeypatch):
+    from ipm.sdf import exact
+
+    def refuse(walk, node):
+        raise exact._GridRefused("not a 2-manifold")
+
+    monkeypatch.setattr(exact._Walk, "grid", refuse)
+    tree = n("union", children=[n("box", 0.5, 0.5, 0.5), n("round", 0.05, children=[n("sphere", 0.3)])])
+    got = exact_mesh(tree, resolution=32)
+    assert got.grid_only and got.fallback == ("n2_round",) and got.mesh.n_faces > 0

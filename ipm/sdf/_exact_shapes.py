@@ -63,7 +63,7 @@ def _polygon(points) -> object:
 
 @builds("sphere")
 def _sphere(walk, node, v):
-    """Geodesic sphere; its vertices on the sphere."""
+    """Geodesic sphere, its vertices on the sphere (manifold rounds its segments up to a multiple of 4)."""
     return _m3d().Manifold.sphere(v[0], walk.segments)
 
 
