@@ -6,6 +6,7 @@ that are the same file are refused before any work."""
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
 from typing import Annotated
 
@@ -27,6 +28,28 @@ from ipm.cli.common import (
 from ipm.cli.render import MAX_RESOLUTION, MIN_RESOLUTION, check_resolution_option
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
+log = logging.getLogger("ipm")
+MIN_SEGMENTS, MAX_SEGMENTS = 3, 1024  # ipm.sdf.exact's (not imported here: it needs torch; ipm --help stays fast)
+
+
+def _grid_mesh(g, values, *, resolution: int, lod, segments: int):
+    """The generator's own mesh (SDF generators: marching cubes at ``resolution``)."""
+    return g.to_mesh(values, resolution=resolution, lod=lod)
+
+
+def _exact_mesh(g, values, *, resolution: int, lod, segments: int):
+    """The exact CSG mesh of an SDF tree; one warning naming the nodes meshed by marching cubes instead."""
+    exact = g.exact_mesh(values, segments=segments, resolution=resolution)
+    if exact.grid_only:
+        log.warning("exact mesh: manifold3d refused the marching-cubes mesh of %s; the whole tree is meshed by "
+                    "marching cubes (resolution %d)", ", ".join(exact.fallback), resolution)
+    elif exact.fallback:
+        log.warning("exact mesh: no exact form for %s; meshed by marching cubes (resolution %d)",
+                    ", ".join(exact.fallback), resolution)
+    return exact.mesh
+
+
+MESHERS = {"grid": _grid_mesh, "exact": _exact_mesh}
 
 
 def register(app: typer.Typer) -> None:
@@ -46,6 +69,11 @@ def register(app: typer.Typer) -> None:
             "take --lod instead and accept any value in range)"))] = 128,
         lod: Annotated[str | None, typer.Option(help="level of detail of mesh generators (e.g. low, "
                                                      "medium, high)")] = None,
+        mesher: Annotated[str, typer.Option(help="how an SDF tree becomes a mesh: grid (marching cubes at "
+                                                 "--resolution) or exact (manifold3d CSG with sharp edges; nodes "
+                                                 "without an exact form use the grid, with a warning)")] = "grid",
+        segments: Annotated[int, typer.Option(help="--mesher exact: straight pieces per full circle of curved "
+                                                   f"primitives, {MIN_SEGMENTS} to {MAX_SEGMENTS}")] = 64,
         preview: Annotated[Path | None, typer.Option(help="also write a shaded preview PNG")] = None,
         library: LibraryOpt = None,
         json_out: JsonOpt = False,
@@ -61,11 +89,15 @@ def register(app: typer.Typer) -> None:
         check_distinct({"-o/--output": output, f"the parameter file beside -o ({sidecar_path(output).name})":
                         sidecar_path(output), "--preview": preview})
         check_resolution_option(resolution, upper=False)
+        if mesher not in MESHERS:
+            raise UsageError(f"--mesher: expected one of {', '.join(MESHERS)}, got {mesher!r}")
+        if not MIN_SEGMENTS <= segments <= MAX_SEGMENTS:
+            raise UsageError(f"--segments: expected {MIN_SEGMENTS} to {MAX_SEGMENTS} pieces per circle, got {segments}")
         g = get_generator(gen, library=[str(p) for p in library] if library else None)
         values = resolve_params(g, preset, params, set_, random, seed)
         g.check_meshing(values, resolution)
         check_resolution_option(resolution)
-        mesh = g.to_mesh(values, resolution=resolution, lod=lod)
+        mesh = MESHERS[mesher](g, values, resolution=resolution, lod=lod, segments=segments)
         if mesh.n_faces == 0:
             raise UsageError(f"{gen}: these parameters give an empty shape (no surface inside the bounds)")
         from ipm.files import all_or_nothing
