@@ -1,8 +1,9 @@
-"""``ipm generate GEN ... -o OUT.{obj,ply,stl,glb}``.
+"""``ipm generate GEN ... -o OUT.{obj,ply,stl,glb,usda,usdc}``, or ``-o OUT.{scad,py}`` for SDF trees: an
+OpenSCAD or CadQuery program (:mod:`ipm.io.programs`). GEN may be a finished run folder of ``ipm fit``.
 
-The mesh, its ``.params.json`` sidecar and the ``--preview`` are written all or none (:func:`ipm.files.
-all_or_nothing`): an existing output is replaced only when every one of them is written, and two outputs
-that are the same file are refused before any work."""
+The mesh or program, its ``.params.json`` sidecar and the ``--preview`` are written all or none
+(:func:`ipm.files.all_or_nothing`): an existing output is replaced only when every one of them is written, and
+two outputs that are the same file are refused before any work."""
 
 from __future__ import annotations
 
@@ -21,20 +22,26 @@ from ipm.cli.common import (
     SetOpt,
     UsageError,
     check_output,
+    command_line,
     emit,
+    open_generator,
     resolve_params,
 )
 from ipm.cli.render import MAX_RESOLUTION, MIN_RESOLUTION, check_resolution_option
 
-MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb")
+MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".usda", ".usdc")
+PROGRAM_SUFFIXES = (".scad", ".py")  # the formats of ipm.io.programs.PROGRAMS
 
 
 def register(app: typer.Typer) -> None:
     @app.command()
     def generate(
         gen: Annotated[str, typer.Argument(help="generator name (dishes, building, meshtree, sdftree), "
-                                                "tree preset, or tree file (.json)")],
-        output: Annotated[Path, typer.Option("-o", "--output", help="mesh file: .obj, .ply, .stl or .glb")],
+                                                "tree preset, tree file (.json), or the run folder of "
+                                                "ipm fit")],
+        output: Annotated[Path, typer.Option("-o", "--output", help="mesh file: .obj, .ply, .stl, .glb, .usda or "
+                                             ".usdc; for SDF trees also a program: .scad (OpenSCAD), .py "
+                                             "(CadQuery)")],
         preset: PresetOpt = None,
         params: ParamsOpt = None,
         set_: SetOpt = None,
@@ -50,19 +57,21 @@ def register(app: typer.Typer) -> None:
         library: LibraryOpt = None,
         json_out: JsonOpt = False,
     ) -> None:
-        """Generate a mesh from a generator and parameters; write it with a .params.json sidecar."""
+        """Generate a mesh (or an SDF tree's program) from a generator and parameters; write it with a
+        .params.json sidecar."""
         from ipm.files import check_distinct
-        from ipm.generators import get_generator
         from ipm.io.export import export_mesh, sidecar_path
 
-        check_output(output, MESH_SUFFIXES)
+        check_output(output, MESH_SUFFIXES + PROGRAM_SUFFIXES)
         if preview is not None:
             check_output(preview, (".png",))
         check_distinct({"-o/--output": output, f"the parameter file beside -o ({sidecar_path(output).name})":
                         sidecar_path(output), "--preview": preview})
         check_resolution_option(resolution, upper=False)
-        g = get_generator(gen, library=[str(p) for p in library] if library else None)
-        values = resolve_params(g, preset, params, set_, random, seed)
+        g, fitted = open_generator(gen, library)
+        values = resolve_params(g, preset, params, set_, random, seed, fitted)
+        if output.suffix.lower() in PROGRAM_SUFFIXES:
+            return _write_program(g, values, output, preview, resolution, json_out)
         g.check_meshing(values, resolution)
         check_resolution_option(resolution)
         mesh = g.to_mesh(values, resolution=resolution, lod=lod)
@@ -80,3 +89,22 @@ def register(app: typer.Typer) -> None:
                 write_preview(mesh, preview)
                 result["preview"] = str(preview)
         emit(result, json_out)
+
+
+def _write_program(g, values: dict, output: Path, preview: Path | None, resolution: int, json_out: bool) -> None:
+    """The SDF tree's program (and its sidecar, and the preview of its mesh), all or none."""
+    from ipm.files import all_or_nothing
+    from ipm.io.export import sidecar_path
+    from ipm.io.programs import export_program
+
+    tree = g.sdf_tree(values)  # generators that are not SDF trees refuse here
+    result = {"program": str(output), "params": str(sidecar_path(output))}
+    with all_or_nothing(output, sidecar_path(output), *([preview] if preview else [])):
+        export_program(tree, output, g.metadata(values), command=command_line())
+        if preview is not None:
+            from ipm.render.preview import write_preview
+
+            g.check_meshing(values, resolution)
+            write_preview(g.to_mesh(values, resolution=resolution), preview)
+            result["preview"] = str(preview)
+    emit(result, json_out)

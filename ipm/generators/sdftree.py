@@ -83,6 +83,10 @@ class SdfTreeGenerator(Generator):
         lo, hi = tree.bounds()
         return mesh_sdf(lambda p: tree.sdf(None, p), lo, hi, resolution or 128)
 
+    def sdf_tree(self, values: Mapping[str, Value]) -> Tree:
+        """The tree with ``values`` stored in it."""
+        return self.tree.with_values(values)
+
     def metadata(self, values: Mapping[str, Value]) -> dict:
         """Adds the tree itself, with ``values`` filled in, as nested JSON (``"tree"``)."""
         from ipm.sdf.tree import tree_to_json

@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ipm.io.programs import PROGRAMS, ProgramFormat
-from ipm.io.programs.lower import Part, Program, identifier, number, walk
+from ipm.io.programs.lower import Part, Program, bare, identifier, number, walk
 
 # node type -> fn(part, children's names) -> the expression of the node's shape
 NODES: dict[str, Callable[[Part, list[str]], str]] = {}
@@ -221,7 +221,7 @@ def write(program: Program, segments: int, header: list[str]) -> str:
                                                              f"BIG = {number(program.big)}  # the side of the cubes "
                                                              "that stand for half-spaces", "", "# parameters"]
     for name, val, comment in program.variables:
-        lines.append(f"{name} = {val.text}" + (f"  # {comment}" if comment else ""))
+        lines.append(f"{name} = {bare(val.text)}" + (f"  # {comment}" if comment else ""))
     for text in helpers(program):
         lines += ["", "", text]
     body: list[str] = []

@@ -79,6 +79,18 @@ def number(x: float) -> str:
     return f"{float(x):.12g}"
 
 
+def bare(text: str) -> str:
+    """``text`` without the parentheses around the whole of it (``(a + b)`` -> ``a + b``)."""
+    if not (text.startswith("(") and text.endswith(")")):
+        return text
+    depth = 0
+    for i, c in enumerate(text):
+        depth += {"(": 1, ")": -1}.get(c, 0)
+        if depth == 0 and i < len(text) - 1:
+            return text
+    return text[1:-1]
+
+
 def identifier(text: str) -> str:
     """``text`` made a variable name that OpenSCAD and Python both accept (letters, digits, ``_``)."""
     out = re.sub(r"\W", "_", text, flags=re.ASCII) or "part"
@@ -205,5 +217,5 @@ def first_unmapped(program: Program, known) -> Part | None:
     return next((p for p in walk(program.root) if p.kind not in known), None)
 
 
-__all__ = ["STRUCTURAL", "Part", "Program", "Val", "expression", "first_unmapped", "identifier", "lower", "number",
-           "walk"]
+__all__ = ["STRUCTURAL", "Part", "Program", "Val", "bare", "expression", "first_unmapped", "identifier", "lower",
+           "number", "walk"]

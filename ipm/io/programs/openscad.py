@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ipm.io.programs import PROGRAMS, ProgramFormat
-from ipm.io.programs.lower import Part, Program, number, walk
+from ipm.io.programs.lower import Part, Program, bare, number, walk
 
 # node type -> fn(part, children's lines) -> the node's lines
 NODES: dict[str, Callable[[Part, list[list[str]]], list[str]]] = {}
@@ -217,7 +217,7 @@ def write(program: Program, segments: int, header: list[str]) -> str:
                                            f"big = {number(program.big)};  // the side of the cubes that stand "
                                            "for half-spaces", "", "// parameters"]
     for name, val, comment in program.variables:
-        lines.append(f"{name} = {val.text};" + (f"  // {comment}" if comment else ""))
+        lines.append(f"{name} = {bare(val.text)};" + (f"  // {comment}" if comment else ""))
     for text in modules(program):
         lines += ["", text]
     lines += ["", "// the shape"] + statement(program.root)
