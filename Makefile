@@ -89,13 +89,16 @@ bench-profile: $(STAMP) ## real vessels' side views: 2D profiles fitted and revo
 table-structure: $(STAMP) ## structure search from meshes: random trees and real furniture against fixed trees, BSP and an SDF grid, results/table_structure/ (about 30 minutes)
 	$(BIN)/python -m benchmarks.table_structure results/table_structure
 
+exact-mesh: $(STAMP) ## exact CSG meshes against marching cubes: seconds, watertight, sharp edges kept (csg preset, 10 random trees), results/exact_mesh/ (seconds)
+	$(BIN)/python -m benchmarks.exact_mesh results/exact_mesh
+
 table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid), results/table_convert/
 	$(BIN)/python -m benchmarks.table_convert results/table_convert
 
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure clean
+.PHONY: help install demo test test-fast lint bench bench-small table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure exact-mesh clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

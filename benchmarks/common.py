@@ -29,6 +29,18 @@ def machine() -> str:
             f"({torch.get_num_threads()} threads), Python {platform.python_version()}")
 
 
+def commit() -> str:
+    """The repository's short commit, with " (plus uncommitted changes)" when ``ipm`` or ``benchmarks`` differ
+    from it."""
+    import subprocess
+
+    root = Path(__file__).resolve().parents[1]
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True, cwd=root)
+    dirty = subprocess.run(["git", "status", "--porcelain", "--", "ipm", "benchmarks"], capture_output=True,
+                           text=True, cwd=root)
+    return head.stdout.strip() + (" (plus uncommitted changes)" if dirty.stdout.strip() else "")
+
+
 def timings(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> tuple[float, float]:
     """(median, best) wall time of ``fn`` in seconds (other jobs on a shared machine only ever add
     time, so the best is the stable statistic there)."""

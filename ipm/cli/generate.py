@@ -7,6 +7,8 @@ two outputs that are the same file are refused before any work."""
 
 from __future__ import annotations
 
+import logging
+from functools import partial
 from pathlib import Path
 from typing import Annotated
 
@@ -31,6 +33,28 @@ from ipm.cli.render import MAX_RESOLUTION, MIN_RESOLUTION, check_resolution_opti
 
 MESH_SUFFIXES = (".obj", ".ply", ".stl", ".glb", ".usda", ".usdc")
 PROGRAM_SUFFIXES = (".scad", ".py")  # the formats of ipm.io.programs.PROGRAMS
+log = logging.getLogger("ipm")
+MIN_SEGMENTS, MAX_SEGMENTS = 3, 1024  # ipm.sdf.exact's (not imported here: it needs torch; ipm --help stays fast)
+
+
+def _grid_mesh(g, values, *, resolution: int, lod, segments: int):
+    """The generator's own mesh (SDF generators: marching cubes at ``resolution``)."""
+    return g.to_mesh(values, resolution=resolution, lod=lod)
+
+
+def _exact_mesh(g, values, *, resolution: int, lod, segments: int):
+    """The exact CSG mesh of an SDF tree; one warning naming the nodes meshed by marching cubes instead."""
+    exact = g.exact_mesh(values, segments=segments, resolution=resolution)
+    if exact.grid_only:
+        log.warning("exact mesh: manifold3d refused the marching-cubes mesh of %s; the whole tree is meshed by "
+                    "marching cubes (resolution %d)", ", ".join(exact.fallback), resolution)
+    elif exact.fallback:
+        log.warning("exact mesh: no exact form for %s; meshed by marching cubes (resolution %d)",
+                    ", ".join(exact.fallback), resolution)
+    return exact.mesh
+
+
+MESHERS = {"grid": _grid_mesh, "exact": _exact_mesh}
 
 
 def register(app: typer.Typer) -> None:
@@ -53,6 +77,12 @@ def register(app: typer.Typer) -> None:
             "take --lod instead and accept any value in range)"))] = 128,
         lod: Annotated[str | None, typer.Option(help="level of detail of mesh generators (e.g. low, "
                                                      "medium, high)")] = None,
+        mesher: Annotated[str, typer.Option(help="how an SDF tree becomes a mesh: grid (marching cubes at "
+                                                 "--resolution) or exact (manifold3d CSG with sharp edges; nodes "
+                                                 "without an exact form use the grid, with a warning)")] = "grid",
+        segments: Annotated[int, typer.Option(help="--mesher exact and OpenSCAD programs ($fn): straight pieces "
+                                                   "per full circle of curved primitives, "
+                                                   f"{MIN_SEGMENTS} to {MAX_SEGMENTS}")] = 64,
         preview: Annotated[Path | None, typer.Option(help="also write a shaded preview PNG")] = None,
         library: LibraryOpt = None,
         json_out: JsonOpt = False,
@@ -68,13 +98,18 @@ def register(app: typer.Typer) -> None:
         check_distinct({"-o/--output": output, f"the parameter file beside -o ({sidecar_path(output).name})":
                         sidecar_path(output), "--preview": preview})
         check_resolution_option(resolution, upper=False)
+        if mesher not in MESHERS:
+            raise UsageError(f"--mesher: expected one of {', '.join(MESHERS)}, got {mesher!r}")
+        if not MIN_SEGMENTS <= segments <= MAX_SEGMENTS:
+            raise UsageError(f"--segments: expected {MIN_SEGMENTS} to {MAX_SEGMENTS} pieces per circle, got {segments}")
         g, fitted = open_generator(gen, library)
         values = resolve_params(g, preset, params, set_, random, seed, fitted)
-        if output.suffix.lower() in PROGRAM_SUFFIXES:
-            return _write_program(g, values, output, preview, resolution, json_out)
         g.check_meshing(values, resolution)
         check_resolution_option(resolution)
-        mesh = g.to_mesh(values, resolution=resolution, lod=lod)
+        if output.suffix.lower() in PROGRAM_SUFFIXES:
+            mesh_for_preview = partial(MESHERS[mesher], g, values, resolution=resolution, lod=lod, segments=segments)
+            return _write_program(g, values, output, preview, mesh_for_preview, segments, json_out)
+        mesh = MESHERS[mesher](g, values, resolution=resolution, lod=lod, segments=segments)
         if mesh.n_faces == 0:
             raise UsageError(f"{gen}: these parameters give an empty shape (no surface inside the bounds)")
         from ipm.files import all_or_nothing
@@ -91,8 +126,9 @@ def register(app: typer.Typer) -> None:
         emit(result, json_out)
 
 
-def _write_program(g, values: dict, output: Path, preview: Path | None, resolution: int, json_out: bool) -> None:
-    """The SDF tree's program (and its sidecar, and the preview of its mesh), all or none."""
+def _write_program(g, values: dict, output: Path, preview: Path | None, mesh_for_preview, segments: int,
+                   json_out: bool) -> None:
+    """The SDF tree's program (and its sidecar, and the ``preview`` of ``mesh_for_preview()``), all or none."""
     from ipm.files import all_or_nothing
     from ipm.io.export import sidecar_path
     from ipm.io.programs import export_program
@@ -100,11 +136,10 @@ def _write_program(g, values: dict, output: Path, preview: Path | None, resoluti
     tree = g.sdf_tree(values)  # generators that are not SDF trees refuse here
     result = {"program": str(output), "params": str(sidecar_path(output))}
     with all_or_nothing(output, sidecar_path(output), *([preview] if preview else [])):
-        export_program(tree, output, g.metadata(values), command=command_line())
+        export_program(tree, output, g.metadata(values), segments=segments, command=command_line())
         if preview is not None:
             from ipm.render.preview import write_preview
 
-            g.check_meshing(values, resolution)
-            write_preview(g.to_mesh(values, resolution=resolution), preview)
+            write_preview(mesh_for_preview(), preview)
             result["preview"] = str(preview)
     emit(result, json_out)

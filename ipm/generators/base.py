@@ -13,7 +13,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import torch
 
@@ -21,6 +21,9 @@ from ipm.errors import InputError
 from ipm.params import ParamSpec, Value
 from ipm.registry import Registry
 from ipm.types import TriMesh
+
+if TYPE_CHECKING:
+    from ipm.sdf.exact import ExactMesh
 
 # Generators by name (a factory each), found in the modules of this package
 GENERATORS: Registry[Callable[[], Generator]] = Registry("generator", packages=["ipm.generators"])
@@ -99,6 +102,13 @@ class Generator(ABC):
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None,
                 lod: Any = None) -> TriMesh:
         """A mesh for export and pictures (SDF generators mesh by marching cubes at ``resolution``)."""
+
+    def exact_mesh(self, values: Mapping[str, Value], *, segments: int = 64, resolution: int = 128) -> ExactMesh:
+        """An exact CSG mesh (:func:`ipm.sdf.exact.exact_mesh`): sharp edges kept, ``segments`` pieces per full
+        circle, ``resolution`` for the marching cubes of the nodes that have no exact counterpart. Only SDF trees
+        have one: other generators refuse (:class:`InputError`)."""
+        raise InputError(f"{self.name}: exact meshes are made of SDF trees only (sdftree, the tree presets, tree "
+                         "files); this generator makes its own mesh (use the default mesher)")
 
     def check_meshing(self, values: Mapping[str, Value], resolution: int) -> None:
         """Refuse (:class:`InputError`, with the largest resolution that fits) a meshing ``resolution`` whose grid

@@ -16,6 +16,7 @@ import torch
 from ipm.errors import InputError
 from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, check_field_meshing, register_generator
 from ipm.params import Value
+from ipm.sdf.exact import ExactMesh, exact_mesh
 from ipm.sdf.meshing import mesh_sdf
 from ipm.sdf.tree import Tree, load_tree, tree_from_json
 from ipm.types import TriMesh
@@ -86,6 +87,10 @@ class SdfTreeGenerator(Generator):
     def sdf_tree(self, values: Mapping[str, Value]) -> Tree:
         """The tree with ``values`` stored in it."""
         return self.tree.with_values(values)
+
+    def exact_mesh(self, values: Mapping[str, Value], *, segments: int = 64, resolution: int = 128) -> ExactMesh:
+        """The tree's exact CSG mesh at ``values`` (:func:`ipm.sdf.exact.exact_mesh`)."""
+        return exact_mesh(self.tree.with_values(values), segments=segments, resolution=resolution)
 
     def metadata(self, values: Mapping[str, Value]) -> dict:
         """Adds the tree itself, with ``values`` filled in, as nested JSON (``"tree"``)."""

@@ -209,6 +209,13 @@ class MacroNode(Node):
         env = self._inner_values(v, None)
         return _template_bbox(self.template, iter(self.exprs), env, kids)
 
+    def expand(self) -> Node:
+        """The template as an ordinary node tree: its values computed from this node's stored ones (floats, and
+        rounded ints for discrete parameters; not checked against their bounds) and its slots replaced by this
+        node's children. Used by whoever walks a tree node by node (exact meshes)."""
+        env = self._inner_values(tuple(float(x) for x in self.values), None)
+        return _expanded(self.template, iter(self.exprs), env, self.children)
+
 
 def _node_values(node: Node, exprs: tuple, env, like: torch.Tensor | None) -> tuple:
     vals = list(node.values)
@@ -246,6 +253,15 @@ def _closure(c, sub, env, slots):
 
 def _count(node: Node) -> int:
     return 1 + sum(_count(c) for c in node.children)
+
+
+def _expanded(node: Node, exprs_it, env, slot_nodes) -> Node:
+    exprs = next(exprs_it)
+    if isinstance(node, SlotNode):
+        return slot_nodes[node.size]
+    v = _node_values(node, exprs, env, None)
+    kids = tuple(_expanded(c, exprs_it, env, slot_nodes) for c in node.children)
+    return node.replace(values=v, children=kids)
 
 
 def _template_bbox(node: Node, exprs_it, env, slot_boxes):

@@ -18,8 +18,7 @@ from ipm.errors import InputError
 from ipm.registry import Registry
 
 PROGRAMS: Registry[ProgramFormat] = Registry("program format", packages=["ipm.io.programs"])
-DEFAULT_SEGMENTS = 64
-MIN_SEGMENTS, MAX_SEGMENTS = 3, 1024
+DEFAULT_SEGMENTS = 64  # as ipm.sdf.exact's meshes
 
 
 @dataclass(frozen=True)
@@ -48,15 +47,16 @@ def program_text(tree, fmt: ProgramFormat, metadata: Mapping | None = None, *,
     """The program of an SDF ``tree`` (:class:`~ipm.sdf.tree.Tree`, its stored values) in ``fmt``.
 
     metadata: ``{generator, ...}`` for the header; segments: the count of straight pieces a full circle is
-    cut into where the language needs one (OpenSCAD's ``$fn``); command: the command line for the header.
+    cut into where the language needs one (OpenSCAD's ``$fn``; :func:`ipm.sdf.exact.exact_mesh` cuts circles
+    alike); command: the command line for the header.
     :class:`InputError` (one line) when a node has no counterpart in the language, naming it and what is
     written.
     """
     from ipm.io.programs.lower import first_unmapped, lower
+    from ipm.sdf.exact import check_segments
     from ipm.version import __version__
 
-    if isinstance(segments, bool) or not isinstance(segments, int) or not MIN_SEGMENTS <= segments <= MAX_SEGMENTS:
-        raise InputError(f"segments: expected an integer from {MIN_SEGMENTS} to {MAX_SEGMENTS}, got {segments!r}")
+    check_segments(segments)
     program = lower(tree)
     bad = first_unmapped(program, fmt.nodes)
     if bad is not None:
