@@ -175,8 +175,9 @@ def volume_iou(a, b) -> float:
     manifold3d's booleans. Duplicate vertices (an STL's triangle soup) are welded first; a mesh that is
     not a closed 2-manifold after that is an :class:`InputError`."""
     A, B = _manifold(a, "first"), _manifold(b, "second")
-    union = (A + B).volume()
-    return float((A ^ B).volume() / union) if union > 0 else 1.0
+    both = (A ^ B).volume()  # one boolean: vol(A ∪ B) = vol(A) + vol(B) - vol(A ∩ B)
+    union = A.volume() + B.volume() - both
+    return float(both / union) if union > 0 else 1.0
 
 
 def _manifold(mesh, which: str):

@@ -36,12 +36,23 @@ HELPERS = {
     if radius_x == radius_y:
         return cq.Face.makeFromWires(cq.Wire.makeCircle(radius_x, vec(0, 0), vec(0, 0, 1)))
     return cq.Face.makeFromWires(cq.Wire.makeEllipse(radius_x, radius_y, vec(0, 0), vec(0, 0, 1), vec(1, 0)))''',
+    "round_rect": '''def round_rect(size_x, size_y, radius):
+    """ipm's round_rect: a rectangle with its corners rounded by radius (at most just under half the smaller side)."""
+    r = min(radius, 0.4999 * min(size_x, size_y))
+    face = polygon([(-size_x / 2, -size_y / 2), (size_x / 2, -size_y / 2), (size_x / 2, size_y / 2),
+                    (-size_x / 2, size_y / 2)])
+    return face.fillet2D(r, face.Vertices()) if r > 0 else face''',
     "fused": '''def fused(shapes):
     """The union of shapes (one shape as it is)."""
     return shapes[0].fuse(*shapes[1:]).clean() if len(shapes) > 1 else shapes[0]''',
     "box": '''def box(size_x, size_y, size_z):
     """A box of full sides, centered."""
     return cq.Solid.makeBox(size_x, size_y, size_z, vec(-size_x / 2, -size_y / 2, -size_z / 2))''',
+    "round_box": '''def round_box(size_x, size_y, size_z, radius):
+    """ipm's round_box: a box with its edges rounded by radius (at most just under half the smallest side)."""
+    r = min(radius, 0.4999 * min(size_x, size_y, size_z))
+    solid = box(size_x, size_y, size_z)
+    return solid.fillet(r, solid.Edges()) if r > 0 else solid''',
     "along_y": '''def along_y(solid):
     """A solid made along Z turned to stand along Y (Z becomes Y)."""
     return solid.rotate(vec(0, 0, 0), vec(1, 0, 0), -90)''',
@@ -97,10 +108,12 @@ HELPERS = {
 }
 
 # the helpers a helper calls
-_NEEDS = {"axis": ("vec",), "polygon": ("vec",), "disc": ("vec",), "box": ("vec",), "along_y": ("vec",),
-          "capsule": ("vec",), "polyhedron": ("vec",), "half_space": ("vec",), "plane": ("vec",),
-          "mirrored": ("half_space", "vec"), "repeated": ("fused", "vec"), "extruded": ("fused", "vec"),
-          "revolved": ("fused", "polygon", "vec"), "revolution": ("polygon", "vec")}
+_NEEDS = {"axis": ("vec",), "polygon": ("vec",), "round_rect": ("polygon", "vec"), "disc": ("vec",),
+          "box": ("vec",), "round_box": ("box", "vec"), "along_y": ("vec",), "capsule": ("vec",),
+          "polyhedron": ("vec",),
+          "half_space": ("vec",), "plane": ("vec",), "mirrored": ("half_space", "vec"),
+          "repeated": ("fused", "vec"), "extruded": ("fused", "vec"), "revolved": ("fused", "polygon", "vec"),
+          "revolution": ("polygon", "vec")}
 
 
 def node(*kinds: str, uses: tuple[str, ...] = ()):
@@ -116,6 +129,7 @@ def node(*kinds: str, uses: tuple[str, ...] = ()):
 for _kind, _text, _uses in (
     ("sphere", "cq.Solid.makeSphere({radius}, angleDegrees1=-90, angleDegrees2=90)", ()),
     ("box", "box({size_x}, {size_y}, {size_z})", ("box",)),
+    ("round_box", "round_box({size_x}, {size_y}, {size_z}, {radius})", ("round_box",)),
     ("cylinder", "cq.Solid.makeCylinder({radius}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0))", ("vec",)),
     ("cone", "cq.Solid.makeCone({radius_bottom}, {radius_top}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0))",
      ("vec",)),
@@ -139,6 +153,7 @@ for _kind, _text, _uses in (
     ("ellipse", "disc({radius_x}, {radius_y})", ("disc",)),
     ("rect", "polygon([(-{size_x} / 2, -{size_y} / 2), ({size_x} / 2, -{size_y} / 2), ({size_x} / 2, {size_y} / 2), "
      "(-{size_x} / 2, {size_y} / 2)])", ("polygon",)),
+    ("round_rect", "round_rect({size_x}, {size_y}, {radius})", ("round_rect",)),
     ("triangle", "polygon([({x0}, {y0}), ({x1}, {y1}), ({x2}, {y2})])", ("polygon",)),
 ):
     node(_kind, uses=_uses)(lambda part, kids, _text=_text: _text.format(**part.args))

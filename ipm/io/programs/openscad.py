@@ -50,13 +50,15 @@ module revolve(offset) {
 }""",
     "capsule": """// ipm's capsule: a segment of length `height` along Y swept by a ball of `radius`
 module capsule(radius, height) {
-  hull() for (s = [-1, 1]) translate([0, s * height / 2, 0]) sphere(r = radius);
+  along_y() rotate_extrude() intersection() {
+    hull() for (s = [-1, 1]) translate([0, s * height / 2]) circle(r = radius);
+    translate([0, -big / 2]) square(big);
+  }
 }""",
-    "round_box": """// ipm's round_box: a box of full sides `size` with edges rounded by `radius`
+    "round_box": """// ipm's round_box: a box of full sides `size`, edges rounded by `radius` (a box grown by a ball)
 module round_box(size, radius) {
   r = min(radius, min(size) / 2);
-  hull() for (x = [-1, 1], y = [-1, 1], z = [-1, 1])
-    translate([x * (size[0] / 2 - r), y * (size[1] / 2 - r), z * (size[2] / 2 - r)]) sphere(r = r);
+  minkowski() { cube([size[0] - 2 * r, size[1] - 2 * r, size[2] - 2 * r], center = true); sphere(r = r); }
 }""",
     "torus": """// ipm's torus: a ring of radius `major` in the XZ plane, its tube of radius `minor`
 module torus(major, minor) { along_y() rotate_extrude() translate([major, 0]) circle(r = minor); }""",
@@ -71,13 +73,13 @@ module tri_prism(radius, length) {
 module pyramid(base, height) {
   b = base / 2;
   polyhedron(points = [[-b, 0, -b], [b, 0, -b], [b, 0, b], [-b, 0, b], [0, height, 0]],
-             faces = [[0, 1, 2, 3], [0, 4, 1], [1, 4, 2], [2, 4, 3], [3, 4, 0]]);
+             faces = [[3, 2, 1, 0], [1, 4, 0], [2, 4, 1], [3, 4, 2], [0, 4, 3]]);  // clockwise seen from outside
 }""",
     "octahedron": """// ipm's octahedron: its corners on the axes at `radius`
 module octahedron(radius) {
   r = radius;
   polyhedron(points = [[r, 0, 0], [-r, 0, 0], [0, r, 0], [0, -r, 0], [0, 0, r], [0, 0, -r]],
-             faces = [[0, 2, 4], [0, 5, 2], [0, 4, 3], [0, 3, 5], [1, 4, 2], [1, 2, 5], [1, 3, 4], [1, 5, 3]]);
+             faces = [[4, 2, 0], [2, 5, 0], [3, 4, 0], [5, 3, 0], [2, 4, 1], [5, 2, 1], [4, 3, 1], [3, 5, 1]]);
 }""",
     "revolution": """// ipm's revolution: radii at evenly spaced heights from y = 0 to `height`, turned about Y
 module revolution(height, radii) {
@@ -92,7 +94,7 @@ module outline(thickness) {
 }
 
 # the modules a module calls
-_NEEDS = {"mirror_half": ("half_space",), "revolve": ("along_y",), "torus": ("along_y",),
+_NEEDS = {"mirror_half": ("half_space",), "revolve": ("along_y",), "torus": ("along_y",), "capsule": ("along_y",),
           "hex_prism": ("along_y",), "revolution": ("along_y",)}
 
 
