@@ -249,3 +249,20 @@ def test_a_mesh_generators_run_folder_gives_meshes_not_programs(tmp_path, capsys
     code, _, err = run(["generate", run_dir, "-o", tmp_path / "cup.obj"], capsys)
     assert code == 2 and len(err.strip().splitlines()) == 1 and f"run folder {run_dir}" in err
 
+
+
+def test_a_structure_search_run_folder_is_its_placed_tree(tmp_path, capsys):
+    """A structure search's tree lies in the target's frame (an outer place node); so does its program."""
+    code, _, err = run(["generate", "table", "-o", tmp_path / "table.obj", "--resolution", "48"], capsys)
+    assert code == 0, err
+    code, _, err = run(["fit", "--structure", "search", "--target-mesh", tmp_path / "table.obj", "-o",
+                        tmp_path / "run", "--budget", "700"], capsys)
+    assert code == 0, err
+    code, _, err = run(["generate", tmp_path / "run", "-o", tmp_path / "found.scad"], capsys)
+    assert code == 0, err
+    text = (tmp_path / "found.scad").read_text()
+    assert "translate([n0_place_x, n0_place_y, n0_place_z]) scale(n0_place_unit)" in text
+    need(".scad")
+    tree = get_generator(str(tmp_path / "run" / "tree.json")).tree
+    got = openscad_mesh(text, tmp_path)
+    assert volume_iou(got, exact_mesh(tree, segments=64).mesh) >= 0.99
