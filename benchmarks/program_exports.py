@@ -163,9 +163,17 @@ def report(rows: list[dict], source: str, segments: int) -> str:
     for row in rows:
         (a, sa), (b, sb) = _cell(row["OpenSCAD"]), _cell(row["CadQuery"])
         lines.append(f"| {row['target']} | {a} | {sa} | {b} | {sb} | {', '.join(row['exact_fallback']) or '-'} |")
+    lines.append("")
+    for language in ("OpenSCAD", "CadQuery"):
+        ious = [r[language]["iou"] for r in rows if "iou" in r[language]]
+        worst = f", lowest IoU {min(ious):.4f}" if ious else ""
+        lines.append(f"- {language}: {len(ious)} of {len(rows)} targets written and run{worst}.")
     return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":
+    import torch
+
+    torch.set_num_threads(1)
     run(Path(sys.argv[1]) if len(sys.argv) > 1 else Path("results/exports"),
         int(sys.argv[2]) if len(sys.argv) > 2 else SEGMENTS)
