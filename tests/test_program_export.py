@@ -266,3 +266,29 @@ def test_a_structure_search_run_folder_is_its_placed_tree(tmp_path, capsys):
     tree = get_generator(str(tmp_path / "run" / "tree.json")).tree
     got = openscad_mesh(text, tmp_path)
     assert volume_iou(got, exact_mesh(tree, segments=64).mesh) >= 0.99
+
+
+PROGRAM_FORMAT = '''
+from ipm.io.programs import PROGRAMS, ProgramFormat
+
+
+def write(program, segments, header):
+    """Every part's type, one a line (a throwaway language)."""
+    from ipm.io.programs.lower import walk
+
+    return "\\n".join(["; " + h for h in header] + [p.kind for p in walk(program.root)]) + "\\n"
+
+
+PROGRAMS.add("{name}", ProgramFormat("Listing", ";", {{"sphere": None, "box": None, "union": None}}, write))
+'''
+
+
+def test_a_program_language_from_a_new_module_is_written_and_listed(tmp_path, monkeypatch, capsys):
+    from conftest import throwaway_member
+
+    with throwaway_member(PROGRAMS, ".lst", PROGRAM_FORMAT.format(name=".lst"), tmp_path, monkeypatch,
+                          "throwaway_programs"):
+        code, out, err = run(["list", "programs", "--json"], capsys)
+        assert code == 0 and ".lst" in [r["name"] for r in json.loads(out)], err
+        tree = tree_from_json({"tree": node("union", [node("sphere"), node("box")])})
+        assert program_text(tree, PROGRAMS[".lst"]).endswith("union\nsphere\nbox\n")

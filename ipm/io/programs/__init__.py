@@ -32,6 +32,11 @@ class ProgramFormat:
     nodes: Mapping[str, Callable]
     write: Callable
 
+    @property
+    def summary(self) -> str:
+        """What ``ipm list programs`` says of it."""
+        return f"{self.language} program of an SDF tree ({len(self.nodes)} node types)"
+
 
 def program_format(path: str | Path) -> ProgramFormat:
     """The format of a program file by its suffix; :class:`InputError` lists the known suffixes."""
