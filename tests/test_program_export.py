@@ -169,8 +169,8 @@ def test_an_edited_variable_changes_the_shape_as_the_macro_would(suffix, tmp_pat
     assert volume_iou(got, want) >= 0.99
 
 
-@pytest.mark.parametrize("suffix, comment", [(".scad", "//"), (".py", "")])
-def test_program_is_readable(suffix, comment, tmp_path, capsys):
+@pytest.mark.parametrize("suffix", SUFFIXES)
+def test_program_is_readable(suffix, tmp_path, capsys):
     out = tmp_path / f"csg{suffix}"
     code, _, err = run(["generate", "csg", "-o", out, "--segments", "48"], capsys)
     assert code == 0, err
@@ -178,8 +178,10 @@ def test_program_is_readable(suffix, comment, tmp_path, capsys):
     head = text[:400]
     assert "ipm" in head and "generator: csg" in head and f"command: ipm generate csg -o {out} --segments 48" in head
     assert re.search(r"^n2_sphere_radius = 0\.65;?$", text, flags=re.M)  # a parameter as a variable
-    marker = "//" if suffix == ".scad" else "#"
-    assert sum(line.endswith(f"{marker} n0_subtraction") for line in text.splitlines()) == 1  # one statement a node
+    def statement(line: str) -> bool:  # the root's statement: its label as a comment, or as the name assigned
+        return line.endswith("// n0_subtraction") if suffix == ".scad" else line.startswith("n0_subtraction = ")
+
+    assert sum(map(statement, text.splitlines())) == 1
     if suffix == ".scad":
         assert "$fn = 48;" in text
     meta = json.loads((tmp_path / "csg.params.json").read_text())

@@ -219,7 +219,8 @@ def statements(part: Part, names: _Names, out: list[str]) -> str:
     """Append the assignments of a part's children, then its own, to ``out``; the part's name."""
     kids = [statements(c, names, out) for c in part.children]
     name = names(part.label)
-    out.append(f"{name} = {NODES[part.kind](part, kids)}" + (f"  # {part.note}" if part.note else ""))
+    note = part.note if part.note and part.note != name else ""  # a name that says it all needs no comment
+    out.append(f"{name} = {NODES[part.kind](part, kids)}" + (f"  # {note}" if note else ""))
     return name
 
 
@@ -232,12 +233,14 @@ def helpers(program: Program) -> list[str]:
 
 def write(program: Program, segments: int, header: list[str]) -> str:
     """The whole ``.py`` file: header, imports, parameters, helper functions, one assignment a node."""
-    lines = ['"""' + header[0] + "."] + [""] + header[1:] + ['"""', "", "import math", "", "import cadquery as cq", "",
-                                                             f"BIG = {number(program.big)}  # the side of the cubes "
-                                                             "that stand for half-spaces", "", "# parameters"]
+    used = helpers(program)
+    lines = ['"""' + header[0] + "."] + [""] + header[1:] + ['"""', "", "import math", "", "import cadquery as cq", ""]
+    if any("BIG" in text for text in used):
+        lines += [f"BIG = {number(program.big)}  # the side of the cubes that stand for half-spaces", ""]
+    lines.append("# parameters")
     for name, val, comment in program.variables:
         lines.append(f"{name} = {bare(val.text)}" + (f"  # {comment}" if comment else ""))
-    for text in helpers(program):
+    for text in used:
         lines += ["", "", text]
     body: list[str] = []
     root = statements(program.root, _Names(name for name, _, _ in program.variables), body)

@@ -215,12 +215,14 @@ def modules(program: Program) -> list[str]:
 
 def write(program: Program, segments: int, header: list[str]) -> str:
     """The whole ``.scad`` file: header, ``$fn``, parameters, helper modules, the shape."""
-    lines = [f"// {h}" for h in header] + ["", f"$fn = {segments};  // straight pieces a circle",
-                                           f"big = {number(program.big)};  // the side of the cubes that stand "
-                                           "for half-spaces", "", "// parameters"]
+    used = modules(program)
+    lines = [f"// {h}" for h in header] + ["", f"$fn = {segments};  // straight pieces a circle"]
+    if any("big" in text for text in used):
+        lines.append(f"big = {number(program.big)};  // the side of the cubes that stand for half-spaces")
+    lines += ["", "// parameters"]
     for name, val, comment in program.variables:
         lines.append(f"{name} = {bare(val.text)};" + (f"  // {comment}" if comment else ""))
-    for text in modules(program):
+    for text in used:
         lines += ["", text]
     lines += ["", "// the shape"] + statement(program.root)
     return "\n".join(lines) + "\n"
