@@ -91,7 +91,7 @@ table-structure: $(STAMP) ## structure search from meshes: random trees and real
 	$(BIN)/python -m benchmarks.table_structure results/table_structure
 
 openscad: ## install OpenSCAD (Debian's package) unless it is there: the tests and table-exports render .scad programs with it
-	@command -v openscad >/dev/null || ($(SUDO) apt-get update -qq && $(SUDO) apt-get install -y -qq openscad)
+	@command -v openscad >/dev/null || ($(SUDO) apt-get update -qq && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq openscad)
 
 cad: $(STAMP) ## install the cad extra (CadQuery with OCP and VTK, about 1.4 GB) into .venv: runs the CadQuery programs
 	$(BIN)/python -m pip install --quiet -e '.[cad]'
