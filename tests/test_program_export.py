@@ -294,3 +294,18 @@ def test_a_program_language_from_a_new_module_is_written_and_listed(tmp_path, mo
         assert code == 0 and ".lst" in [r["name"] for r in json.loads(out)], err
         tree = tree_from_json({"tree": node("union", [node("sphere"), node("box")])})
         assert program_text(tree, PROGRAMS[".lst"]).endswith("union\nsphere\nbox\n")
+
+
+def test_a_shape_fits_run_folder_is_its_lifted_tree(tmp_path, capsys):
+    """A 2D shape fit keeps its 2D tree (tree.json) and, revolved or extruded, lifted.json: the one written."""
+    run_dir = tmp_path / "run"
+    run_dir.mkdir()
+    flat = node("circle", radius=0.5)
+    (run_dir / "tree.json").write_text(json.dumps({"tree": flat}))
+    (run_dir / "result.json").write_text("{}")
+    code, _, err = run(["generate", run_dir, "-o", tmp_path / "v.scad"], capsys)
+    assert code == 2 and len(err.strip().splitlines()) == 1 and "3D" in err, err
+    (run_dir / "lifted.json").write_text(json.dumps({"tree": node("extrude", [flat], height=0.2)}))
+    code, _, err = run(["generate", run_dir, "-o", tmp_path / "v.scad"], capsys)
+    assert code == 0, err
+    assert "linear_extrude(height = n0_extrude_height, center = true)" in (tmp_path / "v.scad").read_text()

@@ -250,19 +250,21 @@ def read_run_file(run_dir: Path, schema: type = RunFile, *, what: str = "--resum
 
 def run_generator(run_dir: str | Path, library: list[str] | None = None):
     """``(generator, values)``: the shape a finished run folder holds, to generate it again (``ipm generate
-    RUN``). A structure search's is its ``tree.json`` (placed in the target's frame) at its values; a fit's
-    is its generator (``settings.json``: source and macro folders, or ``library``) at the fitted parameters
-    of ``result.json``, in the generator's own frame (the fitted pose is not applied). :class:`InputError`
-    (one line, naming the folder) for a folder that is not a finished run."""
+    RUN``). A structure search's is its ``tree.json`` (placed in the target's frame) at its values, a 2D shape
+    fit's its ``lifted.json`` (revolved or extruded); a fit's is its generator (``settings.json``: source and
+    macro folders, or ``library``) at the fitted parameters of ``result.json``, in the generator's own frame
+    (the fitted pose is not applied). :class:`InputError` (one line, naming the folder) for a folder that is
+    not a finished run."""
     from ipm.generators import get_generator
 
     run_dir = Path(run_dir)
     where = f"run folder {run_dir}"
     if not (run_dir / RESULT).is_file():
         raise InputError(f"{where}: expected a finished run of ipm fit (with {RESULT}), got a folder without it")
-    if (run_dir / "tree.json").is_file():  # a structure search (or a 2D shape fit, refused as not 3D)
-        gen = get_generator(str(run_dir / "tree.json"), library=library)
-        return gen, gen.spec.defaults()
+    for name in ("lifted.json", "tree.json"):  # a 2D shape fit's lifted tree; a structure search's tree
+        if (run_dir / name).is_file():  # (a 2D shape fit without a lift is refused: its tree is not 3D)
+            gen = get_generator(str(run_dir / name), library=library)
+            return gen, gen.spec.defaults()
     saved = read_run_file(run_dir, what=where)
     result = read_json_file(run_dir / RESULT, "run result")
     params = result.get("params") if isinstance(result, dict) else None
