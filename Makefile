@@ -5,6 +5,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 TORCH_VERSION := 2.13.0
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 .DEFAULT_GOAL := help
 
@@ -92,6 +93,15 @@ table-gear: $(STAMP) ## the plug-in tutorial's benchmark (docs/plugins.md): rand
 table-structure: $(STAMP) ## structure search from meshes: random trees and real furniture against fixed trees, BSP and an SDF grid, results/table_structure/ (about 30 minutes)
 	$(BIN)/python -m benchmarks.table_structure results/table_structure
 
+openscad: ## install OpenSCAD (Debian's package) unless it is there: the tests and table-exports render .scad programs with it
+	@command -v openscad >/dev/null || ($(SUDO) apt-get update -qq && $(SUDO) env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq openscad)
+
+cad: $(STAMP) ## install the cad extra (CadQuery with OCP and VTK, about 1.4 GB) into .venv: runs the CadQuery programs
+	$(BIN)/python -m pip install --quiet -e '.[cad]'
+
+table-exports: $(STAMP) openscad cad ## OpenSCAD and CadQuery programs of the tree presets and searched trees against the exact mesh, results/exports/
+	$(BIN)/python -m benchmarks.program_exports results/exports
+
 exact-mesh: $(STAMP) ## exact CSG meshes against marching cubes: seconds, watertight, sharp edges kept (csg preset, 10 random trees), results/exact_mesh/ (seconds)
 	$(BIN)/python -m benchmarks.exact_mesh results/exact_mesh
 
@@ -101,7 +111,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure exact-mesh clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure exact-mesh openscad cad table-exports clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

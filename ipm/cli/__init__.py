@@ -35,7 +35,7 @@ app = typer.Typer(
 )
 
 # --debug of the current invocation (read by main's error handler)
-_STATE = {"debug": False}
+_STATE: dict = {"debug": False, "argv": []}
 
 
 @app.callback()
@@ -112,6 +112,7 @@ def main(argv: list[str] | None = None) -> None:
 
     argv = _global_first(list(sys.argv[1:] if argv is None else argv))
     _STATE["debug"] = "--debug" in argv
+    _STATE["argv"] = argv
     interrupted = False
     try:
         rc = app(args=argv, prog_name="ipm", standalone_mode=False)

@@ -120,11 +120,12 @@ JsonOpt = Annotated[bool, typer.Option("--json", help="print JSON on stdout")]
 
 
 def resolve_params(gen, preset: str | None, params_file: Path | None, sets: list[str] | None,
-                   random: bool, seed: int) -> dict:
-    """Full validated parameter dict: defaults < preset < random < file < --set."""
+                   random: bool, seed: int, base: dict | None = None) -> dict:
+    """Full validated parameter dict: defaults < preset < ``base`` (a run folder's fitted values) < random <
+    file < --set."""
     from ipm.params import load_param_file, parse_assignment
 
-    values = gen.values(preset)
+    values = gen.values(preset, base)
     if random:
         rng = seed_everything(seed)
         values.update(gen.spec.random(rng))
@@ -138,6 +139,28 @@ def resolve_params(gen, preset: str | None, params_file: Path | None, sets: list
         k, v = parse_assignment(s)
         values[k] = v
     return gen.spec.validate(values)
+
+
+def command_line() -> str:
+    """The command being run, as typed (``ipm generate ...``), for the headers of the files it writes."""
+    import shlex
+
+    from ipm.cli import _STATE
+
+    return shlex.join(["ipm", *_STATE["argv"]])
+
+
+def open_generator(gen: str, library: list[Path] | None):
+    """``(generator, values or None)`` of a GEN argument: a finished run folder of ``ipm fit`` (its shape at
+    the fitted values, :func:`ipm.io.runs.run_generator`), else a generator name, preset or file."""
+    from ipm.generators import get_generator
+
+    folders = [str(p) for p in library] if library else None
+    if Path(gen).is_dir():
+        from ipm.io.runs import run_generator
+
+        return run_generator(gen, folders)
+    return get_generator(gen, library=folders), None
 
 
 def check_output(path: Path, allowed: tuple[str, ...]) -> Path:

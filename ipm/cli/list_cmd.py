@@ -20,6 +20,7 @@ REGISTRIES = {
     "schemes": ("ipm.subdiv", "SCHEMES", "subdivision schemes of ipm subdivide --method, ipm fit --subdivide"),
     "converters": ("ipm.convert", "CONVERTERS", "conversion targets of ipm convert --to"),
     "formats": ("ipm.io.export", "EXPORTERS", "mesh file formats written (by suffix)"),
+    "programs": ("ipm.io.programs", "PROGRAMS", "CAD program languages an SDF tree is written in (by suffix)"),
     "axes": ("ipm.io.meshes", "UP_AXES", "up axes of --up"),
     "intrinsics": ("ipm.render.camera", "INTRINSICS_FORMATS", "camera intrinsics files read (by suffix)"),
     "shapes": ("ipm.optim.shapes", "SHAPES", "shape adapters of the fit, one per kind of generator"),
@@ -33,10 +34,11 @@ WHAT = tuple(HELP)
 
 
 def _members(registry) -> list[dict]:
-    """Name and first docstring line of each member of a registry."""
+    """Name and first docstring line (or ``summary``, for members that are instances) of each member of a
+    registry."""
     out = []
     for name, member in registry.items():
-        doc = (getattr(member, "__doc__", None) or "").strip().splitlines()
+        doc = (getattr(member, "summary", None) or getattr(member, "__doc__", None) or "").strip().splitlines()
         out.append({"name": name, "doc": doc[0] if doc else ""})
     return out
 

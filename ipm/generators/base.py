@@ -117,6 +117,13 @@ class Generator(ABC):
         nothing to check. Generators meshed from a field override it (:func:`check_field_meshing`)."""
         return None
 
+    def sdf_tree(self, values: Mapping[str, Value]):
+        """The SDF tree (:class:`ipm.sdf.tree.Tree`) these values make, written as a CAD program by
+        ``ipm generate -o x.scad``; generators that are not SDF trees refuse (:class:`InputError`)."""
+        raise InputError(f"{self.name} is not an SDF tree: programs (.scad, .py) are written for SDF trees only "
+                         "(tree presets, tree files, sdftree, and the run folders of their fits); "
+                         "write a mesh (.obj, .glb, .usda, ...) instead")
+
     def metadata(self, values: Mapping[str, Value]) -> dict:
         """What travels with exported meshes (GLB extras and the ``.params.json`` sidecar)."""
         return {"generator": self.name, "params": dict(values)}

@@ -84,6 +84,10 @@ class SdfTreeGenerator(Generator):
         lo, hi = tree.bounds()
         return mesh_sdf(lambda p: tree.sdf(None, p), lo, hi, resolution or 128)
 
+    def sdf_tree(self, values: Mapping[str, Value]) -> Tree:
+        """The tree with ``values`` stored in it."""
+        return self.tree.with_values(values)
+
     def exact_mesh(self, values: Mapping[str, Value], *, segments: int = 64, resolution: int = 128) -> ExactMesh:
         """The tree's exact CSG mesh at ``values`` (:func:`ipm.sdf.exact.exact_mesh`)."""
         return exact_mesh(self.tree.with_values(values), segments=segments, resolution=resolution)

@@ -1,7 +1,8 @@
-"""Mesh export through trimesh (``process=False`` keeps vertex order = Jacobian row order).
+"""Mesh export through trimesh (``process=False`` keeps vertex order = Jacobian row order), and USD.
 
 Formats are chosen by suffix from a registry. GLB files carry ``{generator, params, ipm_version}`` in
-their extras; every export also writes ``<name>.params.json`` beside the mesh.
+their extras, USD files (``.usda``, ``.usdc``: :mod:`ipm.io.usd`) in the mesh's customData; every export
+also writes ``<name>.params.json`` beside the mesh.
 """
 
 from __future__ import annotations
@@ -43,6 +44,14 @@ def _export_glb(tm, path: Path, meta: dict) -> None:
     path.write_bytes(export_glb(scene))
 
 
+@exporter(".usda", ".usdc")
+def _export_usd(tm, path: Path, meta: dict) -> None:
+    """USD, text (.usda) or binary (.usdc): one UsdGeom.Mesh, the metadata as its customData (:mod:`ipm.io.usd`)."""
+    from ipm.io.usd import write_usd
+
+    write_usd(tm.vertices, tm.faces, path, meta, _kind(path))
+
+
 def _kind(path: Path) -> str:
     # the temporary file ends in ".tmp"; the real format is the suffix before it
     return path.name.split(".")[-2] if path.name.endswith(".tmp") else path.suffix.lstrip(".")
@@ -56,9 +65,9 @@ def sidecar_path(path: str | Path) -> Path:
 
 def export_mesh(mesh: TriMesh, path: str | Path, metadata: dict | None = None, *,
                 sidecar: bool = True) -> Path:
-    """Write ``mesh`` to ``path`` (suffix: .obj, .ply, .stl or .glb), atomically.
+    """Write ``mesh`` to ``path`` (suffix: .obj, .ply, .stl, .glb, .usda or .usdc), atomically.
 
-    ``metadata`` (generator, params) goes into GLB extras and the ``.params.json`` sidecar.
+    ``metadata`` (generator, params) goes into GLB extras, USD customData and the ``.params.json`` sidecar.
     """
     from ipm.version import __version__
 

@@ -235,17 +235,46 @@ def read_trajectory(path: Path) -> list[dict]:
     return records
 
 
-def read_run_file(run_dir: Path, schema: type = RunFile):
+def read_run_file(run_dir: Path, schema: type = RunFile, *, what: str = "--resume"):
     """A run folder's ``settings.json``, checked against ``schema``; :class:`InputError` names the file
-    ("--resume: FILE: ...") for a missing, unreadable or damaged one."""
+    ("--resume: FILE: ...", ``what`` first) for a missing, unreadable or damaged one."""
     path = Path(run_dir) / SETTINGS
     if not path.is_file():
-        raise InputError(f"--resume: expected a run folder with {SETTINGS}, got {run_dir}")
+        raise InputError(f"{what}: expected a run folder with {SETTINGS}, got {run_dir}")
     try:
         data = read_json_file(path, "run settings")
     except InputError as e:
-        raise InputError(f"--resume: {e}") from None
-    return checked(data, schema, f"--resume: run settings {path}")
+        raise InputError(f"{what}: {e}") from None
+    return checked(data, schema, f"{what}: run settings {path}")
+
+
+def run_generator(run_dir: str | Path, library: list[str] | None = None):
+    """``(generator, values)``: the shape a finished run folder holds, to generate it again (``ipm generate
+    RUN``). A structure search's is its ``tree.json`` (placed in the target's frame) at its values, a 2D shape
+    fit's its ``lifted.json`` (revolved or extruded); a fit's is its generator (``settings.json``: source and
+    macro folders, or ``library``) at the fitted parameters of ``result.json``, in the generator's own frame
+    (the fitted pose is not applied). :class:`InputError` (one line, naming the folder) for a folder that is
+    not a finished run."""
+    from ipm.generators import get_generator
+
+    run_dir = Path(run_dir)
+    where = f"run folder {run_dir}"
+    if not (run_dir / RESULT).is_file():
+        raise InputError(f"{where}: expected a finished run of ipm fit (with {RESULT}), got a folder without it")
+    for name in ("lifted.json", "tree.json"):  # a 2D shape fit's lifted tree; a structure search's tree
+        if (run_dir / name).is_file():  # (a 2D shape fit without a lift is refused: its tree is not 3D)
+            gen = get_generator(str(run_dir / name), library=library)
+            return gen, gen.spec.defaults()
+    saved = read_run_file(run_dir, what=where)
+    result = read_json_file(run_dir / RESULT, "run result")
+    params = result.get("params") if isinstance(result, dict) else None
+    if not isinstance(params, dict):
+        raise InputError(f"{where}: {RESULT}: expected the fitted parameters under \"params\", got none")
+    gen = get_generator(saved.source or saved.generator, library=library or saved.library)
+    try:
+        return gen, gen.spec.validate({**gen.spec.defaults(), **params})
+    except InputError as e:
+        raise InputError(f"{where}: {RESULT}: {e}") from None
 
 
 class Trajectory:
