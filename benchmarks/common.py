@@ -60,16 +60,18 @@ def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
 
 
 def write_results(out_dir: Path, name: str, title: str, rows: list[dict], notes: str = "") -> None:
-    """Write ``<name>.json`` and a Markdown table ``<name>.md`` with machine, date and command."""
+    """Write ``<name>.json`` and a Markdown table ``<name>.md`` with machine, date, load average, commit and
+    command."""
     from ipm.files import write_text
 
     out_dir.mkdir(parents=True, exist_ok=True)
     meta = {"machine": machine(), "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-            "command": COMMAND}
+            "command": COMMAND, "commit": commit(), "load_average": [round(x, 2) for x in os.getloadavg()]}
     write_text(out_dir / f"{name}.json", json.dumps({"meta": meta, "rows": rows}, indent=2) + "\n")
     cols = list(rows[0]) if rows else []
     lines = [f"# {title}", "", f"Machine: {meta['machine']}  ", f"Date: {meta['date']}  ",
-             f"Command: `{COMMAND}`", ""]
+             f"Load average (1, 5, 15 min) when written: {', '.join(map(str, meta['load_average']))}  ",
+             f"Commit: {meta['commit']}  ", f"Command: `{COMMAND}`", ""]
     if notes:
         lines += [notes, ""]
     lines += ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]

@@ -59,3 +59,22 @@ def test_atomic_path_leaves_nothing_on_failure(tmp_path):
             tmp.write_text("half")
             raise RuntimeError("boom")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_own_glb_and_obj_writers_read_back_by_trimesh(tmp_path):
+    """:mod:`ipm.io.plain` (the writers a fit's run folder uses, without trimesh): one triangle and numpy values
+    in the metadata; chunks 4-byte aligned, the length in the header right, trimesh reads both back."""
+    import struct
+
+    mesh = TriMesh(torch.tensor([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.5]]), torch.tensor([[0, 1, 2]]))
+    path = export_mesh(mesh, tmp_path / "t.glb", {"generator": "g", "params": {"a": np.float64(0.25)},
+                                                  "pose": {"t": np.array([1.0, 2.0])}}, sidecar=False)
+    data = path.read_bytes()
+    magic, version, length = struct.unpack("<4sII", data[:12])
+    assert (magic, version, length) == (b"glTF", 2, len(data)) and len(data) % 4 == 0
+    scene = trimesh.load(path)
+    assert scene.metadata["params"] == {"a": 0.25} and scene.metadata["pose"] == {"t": [1.0, 2.0]}
+    loaded = trimesh.load(path, process=False, force="mesh")
+    assert np.allclose(loaded.vertices, mesh.verts.numpy()) and np.array_equal(loaded.faces, [[0, 1, 2]])
+    obj = trimesh.load(export_mesh(mesh, tmp_path / "t.obj", sidecar=False), process=False, force="mesh")
+    assert np.allclose(obj.vertices, mesh.verts.numpy()) and np.array_equal(obj.faces, [[0, 1, 2]])

@@ -102,10 +102,10 @@ def test_an_up_axis_an_intrinsics_format_and_a_mesh_format_added_to_their_regist
 
     written = []
 
-    def xyz(tm, path, meta):
+    def xyz(mesh, path, meta):
         """Vertices as text."""
         written.append(path.name)
-        path.write_text("\n".join(" ".join(map(str, v)) for v in tm.vertices))
+        path.write_text("\n".join(" ".join(map(str, v)) for v in mesh.verts.tolist()))
 
     UP_AXES.add("x", x_up)
     INTRINSICS_FORMATS.add(".txt", txt)

@@ -12,6 +12,7 @@ import torch
 from conftest import real_path
 from PIL import Image
 
+from ipm.errors import InputError
 from ipm.io.meshes import load_mesh, normalize_mesh, to_y_up
 from ipm.render.camera import orbit_camera
 from ipm.render.preview import render_preview, render_sdf_preview, write_preview
@@ -80,9 +81,23 @@ def test_contact_sheet():
 
 
 def test_loss_plot(tmp_path):
+    """Both curves drawn in their colours (and a legend), on a log scale; one value and non-positive values too."""
+    from ipm.viz.plots import COLORS, nice_ticks
+
     path = plot_losses({"train": [1.0, 0.5, 0.2], "val": [1.2, 0.7, 0.4]}, tmp_path / "loss.png")
     with Image.open(path) as im:
         assert im.format == "PNG" and im.size[0] > 100
+        pixels = np.asarray(im.convert("RGB")).reshape(-1, 3)
+    for color in COLORS[:2]:
+        assert (pixels == color).all(1).sum() > 50, color
+    for curve in ([0.3], [0.0, -1.0, 2.0], [float("nan"), 1.0, 0.5]):
+        with Image.open(plot_losses(curve, tmp_path / "one.png")) as im:
+            assert (np.asarray(im.convert("RGB")).reshape(-1, 3) == COLORS[0]).all(1).any()
+    with pytest.raises(InputError, match="non-empty curve"):
+        plot_losses({"a": []}, tmp_path / "none.png")
+    assert nice_ticks(0, 1) == pytest.approx([0, 0.2, 0.4, 0.6, 0.8, 1.0])
+    assert nice_ticks(0, 2, integer=True) == [0, 1, 2]
+    assert nice_ticks(0.013, 0.87)[0] >= 0.013
 
 
 def test_viz_and_render_do_not_import_matplotlib():

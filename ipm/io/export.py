@@ -20,7 +20,7 @@ EXPORTERS: Registry[Callable] = Registry("mesh format")
 
 
 def exporter(*suffixes: str):
-    """Register ``fn(trimesh, path, meta)`` as the writer of files with these suffixes."""
+    """Register ``fn(mesh: TriMesh, path, meta)`` as the writer of files with these suffixes."""
     def deco(fn):
         for s in suffixes:
             EXPORTERS.add(s, fn)
@@ -28,28 +28,39 @@ def exporter(*suffixes: str):
     return deco
 
 
-@exporter(".obj", ".ply", ".stl")
-def _export_plain(tm, path: Path, meta: dict) -> None:
-    """Wavefront OBJ, PLY or STL through trimesh (the metadata goes to the .params.json sidecar only)."""
-    tm.export(str(path), file_type=_kind(path))
+@exporter(".ply", ".stl")
+def _export_trimesh(mesh: TriMesh, path: Path, meta: dict) -> None:
+    """PLY or STL through trimesh (the metadata goes to the .params.json sidecar only)."""
+    mesh.to_trimesh().export(str(path), file_type=_kind(path))
+
+
+@exporter(".obj")
+def _export_obj(mesh: TriMesh, path: Path, meta: dict) -> None:
+    """Wavefront OBJ (:mod:`ipm.io.plain`; the metadata goes to the .params.json sidecar only)."""
+    from ipm.io.plain import write_obj
+
+    write_obj(*_arrays(mesh), path)
 
 
 @exporter(".glb")
-def _export_glb(tm, path: Path, meta: dict) -> None:
-    """Binary glTF, the metadata ({generator, params, ipm_version}) in the scene's extras."""
-    from trimesh.exchange.gltf import export_glb
+def _export_glb(mesh: TriMesh, path: Path, meta: dict) -> None:
+    """Binary glTF (:mod:`ipm.io.plain`), the metadata ({generator, params, ipm_version}) in the scene's extras."""
+    from ipm.io.plain import write_glb
 
-    scene = tm.scene()
-    scene.metadata.update(meta)  # written as the scene's extras
-    path.write_bytes(export_glb(scene))
+    write_glb(*_arrays(mesh), path, meta)
 
 
 @exporter(".usda", ".usdc")
-def _export_usd(tm, path: Path, meta: dict) -> None:
+def _export_usd(mesh: TriMesh, path: Path, meta: dict) -> None:
     """USD, text (.usda) or binary (.usdc): one UsdGeom.Mesh, the metadata as its customData (:mod:`ipm.io.usd`)."""
     from ipm.io.usd import write_usd
 
-    write_usd(tm.vertices, tm.faces, path, meta, _kind(path))
+    write_usd(*_arrays(mesh), path, meta, _kind(path))
+
+
+def _arrays(mesh: TriMesh) -> tuple:
+    """``(verts (V, 3) float64, faces (F, 3) int64)`` numpy arrays of a mesh."""
+    return mesh.verts.detach().cpu().double().numpy(), mesh.faces.cpu().numpy()
 
 
 def _kind(path: Path) -> str:
@@ -80,9 +91,8 @@ def export_mesh(mesh: TriMesh, path: str | Path, metadata: dict | None = None, *
         raise InputError("the mesh is empty (no faces): nothing to export")
     meta = dict(metadata or {})
     meta["ipm_version"] = __version__
-    tm = mesh.to_trimesh()
     with atomic_path(path, suffix=fmt + ".tmp") as tmp:
-        EXPORTERS[fmt](tm, tmp, meta)
+        EXPORTERS[fmt](mesh, tmp, meta)
     if sidecar:
         write_text(sidecar_path(path), json.dumps(meta, indent=2) + "\n")
     return path

@@ -1,6 +1,6 @@
 """Pictures for people: target-vs-fit overlays, contact sheets, loss plots.
 
-Images are built with Pillow; matplotlib is imported lazily, only by :func:`plot_losses`.
+Images are built with Pillow (loss plots included: :mod:`ipm.viz.plots`).
 """
 
 from ipm.viz.overlay import mask_iou, overlay
