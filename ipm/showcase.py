@@ -264,6 +264,32 @@ def structure_showcase(out: Path) -> dict:
     return {**res.scores, "evaluations": res.evaluations, "wall_time_s": res.wall_time_s, "heldout_iou": iou}
 
 
+def editable_exports(out: Path) -> dict:
+    """Issue #31: the armchair's searched tree (:func:`structure_showcase`'s run folder) leaves ipm as an exact CSG
+    mesh (manifold3d: sharp edges; nodes without an exact form named), a USD stage carrying its parameters, and
+    OpenSCAD and CadQuery programs where every node maps (else the one line that says which node does not)."""
+    from ipm.errors import InputError
+    from ipm.io.export import export_mesh
+    from ipm.io.programs import export_program
+    from ipm.io.runs import run_generator
+
+    gen, values = run_generator(out / "structure")
+    folder = out / "exports"
+    exact = gen.exact_mesh(values)
+    tm = exact.mesh.to_trimesh()
+    export_mesh(exact.mesh, folder / "armchair_exact.obj", gen.metadata(values))
+    export_mesh(exact.mesh, folder / "armchair.usda", gen.metadata(values))
+    row = {"vertices": exact.mesh.n_verts, "watertight": bool(tm.is_watertight), "fallback": list(exact.fallback),
+           "programs": {}}
+    for suffix in (".scad", ".py"):
+        try:
+            export_program(gen.sdf_tree(values), folder / f"armchair{suffix}", gen.metadata(values))
+            row["programs"][suffix] = f"armchair{suffix}"
+        except InputError as e:
+            row["programs"][suffix] = f"refused: {e}"
+    return row
+
+
 def learned_start(out: Path, budget: int = 500) -> dict:
     """Issue #29: a real LoD2 house (:data:`ipm.data.DUTCH_HOUSE`) from one protocol view at 256 px, ``ipm.fit`` of
     the building generator from the ``house2`` preset (``init="presets"``) and from the shipped network's

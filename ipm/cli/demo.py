@@ -61,6 +61,12 @@ def register(app: typer.Typer) -> None:
         st = S.structure_showcase(out)
         print(f"  {st['structure']}: {st['nodes']} nodes, held-out silhouette IoU {st['heldout_iou']:.3f}, "
               f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
+        print("editable exports (#31): the armchair's tree as an exact CSG mesh, USD and CAD programs ...", flush=True)
+        ex = S.editable_exports(out)
+        fallback = f"; marching cubes for {', '.join(ex['fallback'])} (no exact form)" if ex["fallback"] else ""
+        print(f"  exact mesh: {ex['vertices']} vertices, watertight={ex['watertight']}{fallback}")
+        for suffix, what in ex["programs"].items():
+            print(f"  {suffix:5s} {what}")
         print("learned proposals (#29): a real LoD2 house from one view, started from a preset and from the "
               "network's guesses ...", flush=True)
         for init, r in S.learned_start(out).items():
@@ -79,5 +85,7 @@ def register(app: typer.Typer) -> None:
         print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
               "bottle_revolved.obj; outline.png and outline.svg")
         print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json")
+        print("  exports/: armchair_exact.obj (exact CSG), armchair.usda (parameters as customData), armchair.scad and "
+              "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
               "structures.jsonl (every tree tried), result.json")
