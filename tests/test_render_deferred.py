@@ -328,6 +328,9 @@ def test_native_matches_eager_in_float64(scene):
     mesh, cam = _scenes()[scene]
     (img0, g0, out0), (img1, g1, out1) = (_outputs_and_grads(mesh, cam, b) for b in ("eager", "native"))
     assert out1.raster.backend == "native" and out0.raster.backend == "eager"
+    for dtype in (torch.float64, torch.float32):
+        sil = [D.silhouette_edges(mesh.verts.to(dtype), mesh.faces, cam, backend=b) for b in ("eager", "native")]
+        assert torch.equal(*sil) and sil[0].any()
     assert torch.equal(out0.raster.face, out1.raster.face) and torch.equal(out0.parts, out1.parts)
     assert torch.allclose(out0.raster.zbuf, out1.raster.zbuf, rtol=1e-13, atol=0)  # inf where empty in both
     for k in img0:
@@ -430,7 +433,7 @@ def test_the_kernels_header_declares_what_its_source_defines():
 
     decl = native.declarations("deferred")
     names = ["dr_zbuf"] + [f"dr_{op}_{way}_{t}" for op in ("bary", "interp", "aa") for way in ("fwd", "bwd")
-                           for t in "fd"]
+                           for t in "fd"] + ["dr_silhouette_f", "dr_silhouette_d"]
     for name in names:
         assert f"{name}(" in decl and callable(getattr(native.load("deferred").lib, name))
     assert '#include "deferred.h"' in (native.HERE / "deferred.c").read_text()

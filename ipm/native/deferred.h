@@ -18,7 +18,11 @@
    dr_aa_fwd: analytic antialiasing of color (H * W, C) with the face ids face (H * W), the z-buffer zbuf
    (H * W, float64, inf where empty), projected vertices xy (V, 2), faces (F, 3) and silhouette (F, 3) (bytes,
    1 for a silhouette edge); writes out (H * W, C). dr_aa_bwd: given gout, writes gcolor (H * W, C) and
-   gxy (V, 2). */
+   gxy (V, 2).
+
+   dr_silhouette: which edges of faces (F, 3) are silhouettes seen from eye (3) with vertices verts (V, 3):
+   sil (F, 3) bytes, edge k from vertex k to k + 1, 1 where no other face on it faces the eye the same way as
+   this one (silhouette_edges in deferred.py); returns -2 when out of memory, else 0. */
 #include <stdint.h>
 
 int dr_zbuf(const double *tri, const double *tdepth, const int64_t *fidx, int64_t F, int W, int H,
@@ -54,3 +58,7 @@ void dr_aa_bwd_f(const float *color, int64_t C, const int64_t *face, const doubl
 void dr_aa_bwd_d(const double *color, int64_t C, const int64_t *face, const double *zbuf, int W, int H,
                  const double *xy, int64_t V, const int64_t *faces, const uint8_t *sil, const double *gout,
                  double *gcolor, double *gxy);
+
+int dr_silhouette_f(const float *verts, int64_t V, const int64_t *faces, int64_t F, const float *eye, uint8_t *sil);
+int dr_silhouette_d(const double *verts, int64_t V, const int64_t *faces, int64_t F, const double *eye,
+                    uint8_t *sil);

@@ -227,15 +227,19 @@ def shade(normal: torch.Tensor, mask: torch.Tensor, light_dir: torch.Tensor | No
 
 # -- antialiasing ------------------------------------------------------------------------------------
 
-def silhouette_edges(verts: torch.Tensor, faces: torch.Tensor, camera: Camera) -> torch.Tensor:
+def silhouette_edges(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, *,
+                     backend: str | None = None) -> torch.Tensor:
     """Which face edges are silhouettes from this camera: (F, 3) bool, edge i from vertex i to i+1.
 
     An edge of a face is a silhouette if no other face sharing it (by vertex indices) faces the camera
     the same way (front or back): boundary edges, and edges between a front- and a back-facing face.
     nvdiffrast's antialias finds the neighbouring face through its topology hash for the same test. No gradient.
+    backend: "native", "eager" or None (``$IPM_DEFERRED_BACKEND`` or "native").
     """
     F = faces.shape[0]
     dev = faces.device
+    if _native(backend, verts):
+        return native.silhouette_edges(verts, faces.to(torch.int64), camera.eye)
     with torch.no_grad():
         v = verts.detach()
         n = torch.linalg.cross(v[faces[:, 1]] - v[faces[:, 0]], v[faces[:, 2]] - v[faces[:, 0]])
@@ -284,7 +288,7 @@ def antialias(color: torch.Tensor, rast: Raster, verts: torch.Tensor, faces: tor
     if c.shape[:2] != (H, W):
         raise InputError(f"antialias: expected color ({H}, {W}, C), got {tuple(color.shape)}")
     if silhouette is None:
-        silhouette = silhouette_edges(verts, faces, camera)
+        silhouette = silhouette_edges(verts, faces, camera, backend=backend or rast.backend)
     xy, _ = project(verts, camera)  # (V, 2)
     if _native(backend or rast.backend, c, xy):
         out = native.antialias(c, xy, faces.to(torch.int64), rast.face, rast.zbuf, silhouette)
@@ -402,7 +406,7 @@ def render_deferred(mesh: TriMesh, camera: Camera, settings: DeferredSettings | 
     img = shade(normal, rast.mask, light_dir.to(device=verts.device), s.intensity, s.ambient)
     mask = rast.mask.to(verts.dtype)
     if s.antialias:
-        sil = silhouette_edges(verts, faces, camera)
+        sil = silhouette_edges(verts, faces, camera, backend=rast.backend)
         both = antialias(torch.stack([img, mask], -1), rast, verts, faces, camera, sil)
         img, mask = both[..., 0], both[..., 1]
     return Deferred(depth(verts, faces, camera, rast), normal, part_labels(mesh.groups, rast), img, mask,

@@ -13,7 +13,8 @@ backward in a ``torch.autograd.Function``:
   them and in the focal length;
 - :func:`interpolate`: attributes at the pixels, differentiable in the attributes and the barycentrics;
 - :func:`antialias`: the analytic edge antialiasing, differentiable in the colors and the projected
-  vertices (the backward pass finds the pixel pairs again).
+  vertices (the backward pass finds the pixel pairs again), and :func:`silhouette_edges`, the edges it
+  blends at (a hash table of the undirected edges rather than a sort).
 
 Backward passes add into the vertices pixel after pixel in image order (one thread), so gradients are the
 same bits for any thread count; the flags of :data:`ipm.native.FLAGS` make them the same on every CPU.
@@ -187,3 +188,14 @@ def antialias(color: torch.Tensor, xy: torch.Tensor, faces: torch.Tensor, face: 
     bool."""
     return _Antialias.apply(color.contiguous(), xy.contiguous(), faces.contiguous(), face.contiguous(),
                             zbuf.to(torch.float64).contiguous(), silhouette)
+
+
+def silhouette_edges(verts: torch.Tensor, faces: torch.Tensor, eye: torch.Tensor) -> torch.Tensor:
+    """Silhouette edges (F, 3) bool seen from ``eye`` (3,) (see :func:`ipm.render.deferred.silhouette_edges`);
+    verts (V, 3) float32 or float64 (no gradient), eye of its dtype, faces (F, 3) int64."""
+    v = verts.detach().contiguous()
+    sil = torch.empty(faces.shape[0], 3, dtype=torch.uint8)
+    if _fn("dr_silhouette", v.dtype)(v, v.shape[0], faces.contiguous(), faces.shape[0],
+                                     eye.detach().to(v.dtype).contiguous(), sil):
+        raise MemoryError("deferred silhouette edges: the native kernel ran out of memory")
+    return sil.bool()
