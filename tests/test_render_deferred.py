@@ -428,6 +428,24 @@ def test_native_falls_back_to_eager_without_the_kernel(monkeypatch):
 
 
 @needs_native
+def test_native_checks_indices_and_stays_finite_with_non_finite_vertices():
+    v, f = _scene()
+    r = D.rasterize(v, f, CAM, backend="native")
+    with pytest.raises(InputError):
+        D.interpolate(v, r, f[:5])  # not the faces that were rasterized
+    with pytest.raises(InputError):
+        D.interpolate(v[:4], r, f)
+    with pytest.raises(InputError):
+        D.antialias(r.mask.double(), r, v, f, CAM, torch.ones(5, 3, dtype=torch.bool))
+    bad = v.clone()
+    bad[9] = float("nan")  # a vertex of the floating triangle: the box is drawn alone
+    for backend in ("eager", "native"):
+        out = D.render_deferred(TriMesh(bad, f), CAM, D.DeferredSettings(backend=backend))
+        assert torch.equal(out.raster.face, D.rasterize(v, f[:12], CAM, backend="eager").face)
+        assert torch.isfinite(out.image).all() and torch.isfinite(out.depth).all()
+
+
+@needs_native
 def test_the_kernels_header_declares_what_its_source_defines():
     from ipm import native
 

@@ -26,6 +26,7 @@ import logging
 
 import torch
 
+from ipm.errors import InputError
 from ipm.render.scan import visible_triangles
 from ipm.types import Camera
 
@@ -62,6 +63,19 @@ def _fn(name: str, dtype: torch.dtype | None = None):
                     for a in args))
 
     return call
+
+
+def _check_indices(faces: torch.Tensor, n_verts: int, face: torch.Tensor | None = None) -> None:
+    """``InputError`` unless faces (F, 3) index ``n_verts`` vertices and the face map ``face`` indexes faces
+    (the kernel reads what they point at; eager indexing would raise)."""
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"faces: expected (F, 3), got {tuple(faces.shape)}")
+    if faces.numel() and (int(faces.min()) < 0 or int(faces.max()) >= n_verts):
+        raise InputError(f"faces: expected vertex indices in [0, {n_verts}), got "
+                         f"[{int(faces.min())}, {int(faces.max())}]")
+    if face is not None and face.numel() and int(face.max()) >= faces.shape[0]:
+        raise InputError(f"faces: expected the {int(face.max()) + 1} or more faces that were rasterized, got "
+                         f"{faces.shape[0]}")
 
 
 def zbuffer(verts: torch.Tensor, faces: torch.Tensor, camera: Camera, near: float
@@ -148,6 +162,7 @@ def interpolate(attr: torch.Tensor, bary: torch.Tensor, faces: torch.Tensor, fac
                 background: float) -> torch.Tensor:
     """``Σ_k bary_k attr[face_k]`` per pixel, (H, W, C); attr (V, C) and bary (H, W, 3) of one dtype, face
     (H, W) int64, ``background`` where it is -1."""
+    _check_indices(faces, attr.shape[0], face)
     H, W = face.shape
     out = _Interpolate.apply(attr.contiguous(), bary.contiguous(), faces.contiguous(), face.contiguous(),
                              float(background))
@@ -186,6 +201,9 @@ def antialias(color: torch.Tensor, xy: torch.Tensor, faces: torch.Tensor, face: 
     """Analytic edge antialiasing of color (H, W, C) (see :func:`ipm.render.deferred.antialias`); xy: (V, 2)
     projected vertices of the dtype of ``color``; face (H, W) int64; zbuf (H, W) float64; silhouette (F, 3)
     bool."""
+    _check_indices(faces, xy.shape[0], face)
+    if silhouette.shape != faces.shape:
+        raise InputError(f"silhouette: expected {tuple(faces.shape)}, got {tuple(silhouette.shape)}")
     return _Antialias.apply(color.contiguous(), xy.contiguous(), faces.contiguous(), face.contiguous(),
                             zbuf.to(torch.float64).contiguous(), silhouette)
 
@@ -193,6 +211,7 @@ def antialias(color: torch.Tensor, xy: torch.Tensor, faces: torch.Tensor, face: 
 def silhouette_edges(verts: torch.Tensor, faces: torch.Tensor, eye: torch.Tensor) -> torch.Tensor:
     """Silhouette edges (F, 3) bool seen from ``eye`` (3,) (see :func:`ipm.render.deferred.silhouette_edges`);
     verts (V, 3) float32 or float64 (no gradient), eye of its dtype, faces (F, 3) int64."""
+    _check_indices(faces, verts.shape[0])
     v = verts.detach().contiguous()
     sil = torch.empty(faces.shape[0], 3, dtype=torch.uint8)
     if _fn("dr_silhouette", v.dtype)(v, v.shape[0], faces.contiguous(), faces.shape[0],
