@@ -8,9 +8,12 @@ backward in a ``torch.autograd.Function``:
 - :func:`zbuffer`: the exact z-buffer of :mod:`ipm.render.raster` (float64, no gradient): the same span of
   pixel centers per row (:func:`ipm.render.scan.span_rows` with no padding), the same 1/z planes, the
   largest 1/z kept and ties to the lower face index; bands of rows on torch's threads, each band's faces in
-  index order, so the result does not depend on the thread count;
+  index order, so the result does not depend on the thread count. The planes' cross products are computed
+  without fused multiply-adds, which torch's may use on CPUs that have them, so depths agree with the exact
+  rasterizer's to about 1e-15 relative and faces are the same but where two faces' 1/z tie to the last bit;
 - :func:`barycentrics`: the triple-product barycentrics from the camera-space vertices, differentiable in
-  them and in the focal length;
+  them and in the focal length (computed in double for float32 too: the triple products cancel, and the
+  eager op's float32 barycentrics are off by up to 6e-4 in the benchmark's view);
 - :func:`interpolate`: attributes at the pixels, differentiable in the attributes and the barycentrics;
 - :func:`antialias`: the analytic edge antialiasing, differentiable in the colors and the projected
   vertices (the backward pass finds the pixel pairs again), and :func:`silhouette_edges`, the edges it
