@@ -88,9 +88,11 @@ def run(out_dir: Path) -> list[dict]:
                  + ", ".join(f"{k} {r:.1f}x" for k, r in speedup.items()) + ". Op split (best of 7, one "
                  "thread, 10k faces, 256^2, forward ms): "
                  + "; ".join(f"{b}: {v}" for b, v in split.items()) + ". Load average (1 min) before / after: "
-                 f"{load_before} / {_loadavg()} (2 shared cores), and per row in the load column. This file "
-                 "alone: `python -m benchmarks.run results/perf deferred`; the threads column is torch's "
-                 "intra-op thread count for that row (the native kernel's z-buffer uses them).")
+                 f"{load_before} / {_loadavg()} (2 shared cores), and per row in the load column; with a load "
+                 "above 2 the 2-thread row measures threads waiting for busy cores (issue #28: ipm.threads only "
+                 "gives a second thread where a core is idle). This file alone: `python -m benchmarks.run "
+                 "results/perf deferred`; the threads column is torch's intra-op thread count for that row (the "
+                 "native kernel's z-buffer uses them).")
         write_results(out_dir, "deferred", "Deferred renderer (rasterize, interpolate, antialias, shade): "
                       "native and eager backends, all outputs, forward and forward+backward", rows, notes)
     finally:
