@@ -54,6 +54,20 @@ def timings(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> tuple
     return statistics.median(times), min(times)
 
 
+def paired_timings(fns: dict[str, Callable[[], object]], repeat: int = 9) -> dict[str, tuple[float, float]]:
+    """(median, best) wall time in seconds of each of ``fns``, called in turn in every repeat (after one
+    warm-up call each), so that changes in the machine's load fall on all of them alike."""
+    for fn in fns.values():
+        fn()
+    times: dict[str, list[float]] = {k: [] for k in fns}
+    for _ in range(repeat):
+        for k, fn in fns.items():
+            t0 = time.perf_counter()
+            fn()
+            times[k].append(time.perf_counter() - t0)
+    return {k: (statistics.median(t), min(t)) for k, t in times.items()}
+
+
 def timeit(fn: Callable[[], object], repeat: int = 7, warmup: int = 1) -> float:
     """Median wall time of ``fn`` in seconds."""
     return timings(fn, repeat, warmup)[0]

@@ -8,7 +8,8 @@ mug scan (``demo_mug``), three cells of ``experiments/table1.toml`` at K = 1, se
 Variants, each in a fresh process:
 
 - ``base``: the native soft-silhouette kernel, one torch thread;
-- ``eager``: the pure-torch kernel instead of the native one (``IPM_SOFT_BACKEND=eager``);
+- ``eager``: the pure-torch kernels instead of the native ones (``IPM_SOFT_BACKEND=eager`` for the soft
+  silhouette, ``IPM_DEFERRED_BACKEND=eager`` for the deferred renderer of the depth and part-label cues);
 - ``threads2``: two torch threads (another order of torch's parallel reductions), used even where the
   other core is busy (``ipm.threads`` would otherwise fall back to one);
 - ``isa``: torch's kernels without SIMD (``ATEN_CPU_CAPABILITY=default``): another CPU's code path for every
@@ -46,7 +47,7 @@ TOLERANCE = 0.005
 
 VARIANTS: dict[str, dict] = {
     "base": {},
-    "eager": {"env": {"IPM_SOFT_BACKEND": "eager"}},
+    "eager": {"env": {"IPM_SOFT_BACKEND": "eager", "IPM_DEFERRED_BACKEND": "eager"}},
     "threads2": {"env": {"IPM_THREADS": "2"}, "threads": 2},
     "isa": {"env": {"ATEN_CPU_CAPABILITY": "default"}},
     "start": {"start": EPS},

@@ -1,7 +1,9 @@
 """Deferred renderer (nvdiffrast's ops): agreement with the exact rasterizer, barycentrics on the pixel
 ray, float64 gradients of interpolated depth, normals and shading against finite differences, and of the
 antialiased image at silhouette and occlusion edges (finite differences of the same image, and the
-derivative of the exact projected area)."""
+derivative of the exact projected area), each under both backends; and the native backend (the C kernel)
+against the eager one: same outputs and gradients, the same bits for any thread count and instruction set,
+and the fallback to eager where it cannot be built."""
 
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from conftest import real_path
 from ipm.errors import InputError
 from ipm.io.meshes import load_mesh
 from ipm.render import deferred as D
+from ipm.render import deferred_native
 from ipm.render.camera import input_views, orbit_camera, pixel_rays, project
 from ipm.render.raster import rasterize as exact_rasterize
 from ipm.types import TriMesh
@@ -26,13 +29,21 @@ def box(extents=(1.0, 1.2, 0.8)):
 
 
 CAM = orbit_camera(30.0, 20.0, 3.0, width=40, height=32)
+needs_native = pytest.mark.skipif(not deferred_native.available(), reason="no C compiler for the native kernel")
+
+
+@pytest.fixture(params=["eager", pytest.param("native", marks=needs_native)])
+def backend(request, monkeypatch):
+    """The test under each backend: rasterize reads ``$IPM_DEFERRED_BACKEND``, the other ops follow the raster."""
+    monkeypatch.setenv("IPM_DEFERRED_BACKEND", request.param)
+    return request.param
 
 
 # -- rasterize / interpolate ----------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name, up", [("vessels/probcomp_mug.obj", "y"),
                                       ("buildings/denhaag_84A7976B_lod2.obj", "z")])
-def test_mask_face_and_depth_match_the_exact_rasterizer(name, up):
+def test_mask_face_and_depth_match_the_exact_rasterizer(name, up, backend):
     mesh = load_mesh(real_path(name), up=up)
     v = mesh.verts.double()
     for cam in (input_views(1, 64)[0], orbit_camera(200.0, -15.0, 3.2, width=64, height=48)):
@@ -48,7 +59,7 @@ def test_mask_face_and_depth_match_the_exact_rasterizer(name, up):
         assert float(b.min()) > -1e-9  # pixel centers are inside their face
 
 
-def test_interpolated_positions_lie_on_the_pixel_rays():
+def test_interpolated_positions_lie_on_the_pixel_rays(backend):
     v, f = box()
     r = D.rasterize(v, f, CAM)
     pts = D.interpolate(v, r, f)[r.mask]  # (N, 3)
@@ -77,7 +88,7 @@ def test_interpolate_checks_and_background():
         D.rasterize(v.float()[:, :2], f, CAM)
 
 
-def test_part_labels_and_normals():
+def test_part_labels_and_normals(backend):
     a, fa = box((1.0, 1.0, 1.0))
     b, fb = box((0.4, 0.4, 0.4))
     mesh = TriMesh.concat([TriMesh(a, fa), TriMesh(b + torch.tensor([0.0, 0.8, 0.0], dtype=torch.float64),
@@ -122,9 +133,9 @@ def test_shading_parameters_are_differentiable():
 
 # -- gradients w.r.t. vertex positions (interior pixels: face ids fixed) --------------------------------
 
-def _interior(v, f, fn):
+def _interior(v, f, fn, cam=CAM):
     """fn(verts) on the pixels whose face id survives small perturbations."""
-    r = D.rasterize(v, f, CAM)
+    r = D.rasterize(v, f, cam)
     keep = r.mask.clone()
     keep[1:] &= r.face[1:] == r.face[:-1]
     keep[:-1] &= r.face[:-1] == r.face[1:]
@@ -134,7 +145,7 @@ def _interior(v, f, fn):
 
 
 @pytest.mark.parametrize("what", ["depth", "position", "flat normal", "smooth normal", "shade"])
-def test_gradcheck_interior(what):
+def test_gradcheck_interior(what, backend):
     v, f = box()
     light = torch.tensor([0.4, 0.7, 0.6], dtype=torch.float64)
 
@@ -154,17 +165,19 @@ def test_gradcheck_interior(what):
     assert torch.autograd.gradcheck(_interior(v, f, fn), (x,))
 
 
-def test_gradcheck_camera():
+def test_gradcheck_camera(backend):
     v, f = box()
     eye = CAM.eye.clone().requires_grad_(True)
     fov = CAM.fov_deg.clone().requires_grad_(True)
 
     def fn(e, fv):
-        cam = orbit_camera(30.0, 20.0, 3.0, width=40, height=32)
-        cam = type(cam)(e, cam.target, cam.up, fv, cam.width, cam.height)
-        return D.depth(v, f, cam, D.rasterize(v, f, cam))
+        cam = type(CAM)(e, CAM.target, CAM.up, fv, CAM.width, CAM.height, cx=19.0, cy=17.5)
+        r = D.rasterize(v, f, cam)
+        return torch.stack([D.depth(v, f, cam, r), D.vertex_normal_image(v, f, r)[..., 0]], -1)
 
-    assert torch.autograd.gradcheck(_interior(v, f, lambda e: fn(e, fov)), (eye,))
+    off = type(CAM)(CAM.eye, CAM.target, CAM.up, CAM.fov_deg, CAM.width, CAM.height, cx=19.0, cy=17.5)
+    assert torch.autograd.gradcheck(_interior(v, f, lambda e: fn(e, fov), off), (eye,))
+    assert torch.autograd.gradcheck(_interior(v, f, lambda fv: fn(CAM.eye, fv), off), (fov,))
 
 
 # -- antialiasing ---------------------------------------------------------------------------------------
@@ -178,7 +191,7 @@ def _scene():
 
 
 @pytest.mark.parametrize("image", ["mask", "shade"])
-def test_antialias_gradient_matches_finite_differences(image):
+def test_antialias_gradient_matches_finite_differences(image, backend):
     """gradcheck (central differences, eps 1e-6) of the whole antialiased image: at eps = 1e-6 no pixel
     changes face id in this generic view, so the antialiased image is smooth there and its finite
     difference is the gradient we want to be exact."""
@@ -198,7 +211,7 @@ def test_antialias_gradient_matches_finite_differences(image):
     assert torch.autograd.gradcheck(fn, (x,))
 
 
-def test_antialiased_coverage_follows_the_exact_area():
+def test_antialiased_coverage_follows_the_exact_area(backend):
     """The sum of an antialiased mask is (up to the corners) the projected area, and its gradient w.r.t.
     the vertices is the derivative of the exact area (shoelace formula on the projected vertices): this
     compares with the coverage the hard mask cannot differentiate, not with the approximation itself."""
@@ -218,7 +231,7 @@ def test_antialiased_coverage_follows_the_exact_area():
     assert int(r.mask.sum()) != pytest.approx(float(area.detach()), abs=0.5)  # the plain mask is off
 
 
-def test_antialias_leaves_interiors_and_open_mesh_seams_alone():
+def test_antialias_leaves_interiors_and_open_mesh_seams_alone(backend):
     # two coplanar triangles sharing an edge: the shared edge is no silhouette, nothing blends there
     v = torch.tensor([[-0.5, -0.5, 0.0], [0.5, -0.5, 0.0], [0.5, 0.5, 0.0], [-0.5, 0.5, 0.0]],
                      dtype=torch.float64)
@@ -238,7 +251,7 @@ def test_antialias_leaves_interiors_and_open_mesh_seams_alone():
     assert not torch.equal(out, col)
 
 
-def test_render_deferred_outputs():
+def test_render_deferred_outputs(backend):
     v, f = box()
     x = v.clone().requires_grad_(True)
     out = D.render_deferred(TriMesh(x, f), CAM, D.DeferredSettings(smooth=True))
@@ -257,7 +270,7 @@ def test_ops_are_device_agnostic():
     assert ".cpu()" not in src and ".numpy()" not in src and ".item()" not in src
 
 
-def test_settings_and_empty_views():
+def test_settings_and_empty_views(backend):
     with pytest.raises(InputError):
         D.DeferredSettings(near=0.0)
     with pytest.raises(InputError):
@@ -273,3 +286,172 @@ def test_settings_and_empty_views():
         intensity=1.0))
     top = lit.normal[..., 1] > 0.999
     assert top.any() and torch.allclose(lit.image[top], torch.ones_like(lit.image[top]))
+
+
+# -- the native backend against the eager one ---------------------------------------------------------------
+
+def _outputs_and_grads(mesh, cam, backend, dtype=torch.float64):
+    """Every output of render_deferred (smooth normals, antialiased), an interpolated attribute, and the
+    gradients of a weighted sum of them w.r.t. the vertices, the attribute and the camera's eye and fov."""
+    v = mesh.verts.to(dtype).clone().requires_grad_(True)
+    attr = torch.linspace(-1.0, 2.0, 2 * v.shape[0], dtype=dtype).view(-1, 2).requires_grad_(True)
+    eye = cam.eye.to(dtype).clone().requires_grad_(True)
+    fov = cam.fov_deg.to(dtype).clone().requires_grad_(True)
+    view = type(cam)(eye, cam.target.to(dtype), cam.up.to(dtype), fov, cam.width, cam.height, cx=cam.cx,
+                     cy=cam.cy)
+    out = D.render_deferred(TriMesh(v, mesh.faces, mesh.groups), view, D.DeferredSettings(smooth=True,
+                                                                                          backend=backend))
+    extra = D.interpolate(attr, out.raster, mesh.faces, background=0.5)
+    images = {"depth": out.depth, "normal": out.normal, "image": out.image, "mask": out.mask, "attr": extra,
+              "bary": out.raster.bary}
+    g = torch.Generator().manual_seed(3)
+    loss = sum((x * torch.rand(x.shape, generator=g, dtype=dtype)).sum() for x in images.values())
+    loss.backward()
+    grads = {"verts": v.grad, "attr": attr.grad, "eye": eye.grad, "fov": fov.grad}
+    return {k: x.detach() for k, x in images.items()}, grads, out
+
+
+def _scenes():
+    """The box with a triangle in front of it (occlusion edges), the mug scan (a closed mesh with thin walls)
+    from a view with an off-center principal point, each with part labels."""
+    v, f = _scene()
+    mug = load_mesh(real_path("vessels/probcomp_mug.obj"), up="y")
+    cam = orbit_camera(200.0, -15.0, 3.2, width=64, height=48)
+    cam = type(cam)(cam.eye, cam.target, cam.up, cam.fov_deg, 64, 48, cx=30.5, cy=25.0)
+    return [(TriMesh(v, f, torch.arange(f.shape[0]) % 3), CAM),
+            (TriMesh(mug.verts.double(), mug.faces, torch.arange(mug.faces.shape[0]) % 2), cam)]
+
+
+@needs_native
+@pytest.mark.parametrize("scene", [0, 1])
+def test_native_matches_eager_in_float64(scene):
+    mesh, cam = _scenes()[scene]
+    (img0, g0, out0), (img1, g1, out1) = (_outputs_and_grads(mesh, cam, b) for b in ("eager", "native"))
+    assert out1.raster.backend == "native" and out0.raster.backend == "eager"
+    for dtype in (torch.float64, torch.float32):
+        sil = [D.silhouette_edges(mesh.verts.to(dtype), mesh.faces, cam, backend=b) for b in ("eager", "native")]
+        assert torch.equal(*sil) and sil[0].any()
+    assert torch.equal(out0.raster.face, out1.raster.face) and torch.equal(out0.parts, out1.parts)
+    assert torch.allclose(out0.raster.zbuf, out1.raster.zbuf, rtol=1e-13, atol=0)  # inf where empty in both
+    for k in img0:
+        assert (img0[k] - img1[k]).abs().max() <= 1e-12, k
+    for k in g0:
+        assert (g0[k] - g1[k]).norm() <= 1e-11 * g0[k].norm() + 1e-13, k
+
+
+@needs_native
+@pytest.mark.parametrize("scene", [0, 1])
+def test_native_in_float32_is_as_close_to_float64_as_eager(scene):
+    """Barycentrics are triple products that cancel: both backends lose digits in float32 (the native one
+    computes them in double from the float32 vertices), neither more than a few times the other."""
+    mesh, cam = _scenes()[scene]
+    ref, gref, _ = _outputs_and_grads(mesh, cam, "eager")
+    (img0, g0, out0), (img1, g1, out1) = (_outputs_and_grads(mesh, cam, b, torch.float32)
+                                          for b in ("eager", "native"))
+    assert torch.equal(out0.raster.face, out1.raster.face)
+    assert img1["image"].dtype == torch.float32 and g1["verts"].dtype == torch.float32
+    for k in ref:
+        err0, err1 = ((x[k].double() - ref[k]).abs().max() for x in (img0, img1))
+        assert err1 <= 2 * err0 + 1e-6, (k, err0, err1)
+    for k in ("verts", "attr"):
+        err0, err1 = ((x[k].double() - gref[k]).norm() / gref[k].norm() for x in (g0, g1))
+        assert err1 <= 2 * err0 + 1e-6, (k, err0, err1)
+
+
+@needs_native
+def test_native_coverage_and_faces_are_the_exact_rasterizers():
+    mesh = load_mesh(real_path("buildings/denhaag_84A7976B_lod2.obj"), up="z")
+    for cam in (input_views(1, 96)[0], orbit_camera(120.0, 35.0, 3.0, width=80, height=72)):
+        fr = exact_rasterize(mesh.verts.double(), mesh.faces, cam)
+        r = D.rasterize(mesh.verts, mesh.faces, cam, backend="native")
+        assert torch.equal(r.mask, fr.mask) and torch.equal(r.face, fr.face)
+        assert torch.allclose(r.zbuf, fr.depth, rtol=1e-13, atol=0)
+
+
+@needs_native
+def test_native_bits_do_not_depend_on_the_thread_count():
+    mesh, cam = _scenes()[1]
+    before = torch.get_num_threads()
+    try:
+        runs = []
+        for n in (1, 2):
+            torch.set_num_threads(n)
+            runs.append(_outputs_and_grads(mesh, cam, "native", torch.float32)[:2])
+    finally:
+        torch.set_num_threads(before)
+    (img1, g1), (img2, g2) = runs
+    assert all(torch.equal(img1[k], img2[k]) for k in img1) and all(torch.equal(g1[k], g2[k]) for k in g1)
+
+
+@needs_native
+def test_native_bits_do_not_depend_on_the_instruction_set(tmp_path, monkeypatch):
+    """As the soft kernel (issue #28): built for this CPU, for AVX2 (x86-64-v3) and for plain x86-64, the
+    kernel gives the same outputs and gradients bit for bit."""
+    import platform
+
+    from ipm import native
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("compares x86-64 instruction sets")
+    mesh, cam = _scenes()[1]
+    runs = {}
+    try:
+        for march in ("-march=native", "-march=x86-64-v3", "-march=x86-64"):
+            built = tuple(([f if not f.startswith("-march=") else march for f in cflags], libs)
+                          for cflags, libs in native.FLAGS)
+            monkeypatch.setattr(native, "FLAGS", built)
+            monkeypatch.setenv("IPM_CACHE_DIR", str(tmp_path / march))
+            native.forget("deferred")
+            for dtype in (torch.float32, torch.float64):
+                runs[march, dtype] = _outputs_and_grads(mesh, cam, "native", dtype)[:2]
+    finally:
+        native.forget("deferred")
+    for (march, dtype), (img, g) in runs.items():
+        img0, g0 = runs["-march=native", dtype]
+        assert all(torch.equal(img0[k], img[k]) for k in img0), (march, dtype)
+        assert all(torch.equal(g0[k], g[k]) for k in g0), (march, dtype)
+
+
+def test_native_falls_back_to_eager_without_the_kernel(monkeypatch):
+    mesh, cam = _scenes()[0]
+    expected = _outputs_and_grads(mesh, cam, "eager")
+    monkeypatch.setattr(deferred_native, "_kernel", lambda: None)
+    for backend in ("native", None):
+        img, g, out = _outputs_and_grads(mesh, cam, backend)
+        assert out.raster.backend == "eager"
+        assert all(torch.equal(expected[0][k], img[k]) for k in img)
+        assert all(torch.equal(expected[1][k], g[k]) for k in g)
+    with pytest.raises(InputError):
+        D.DeferredSettings(backend="cuda")
+    with pytest.raises(InputError):
+        D.rasterize(mesh.verts, mesh.faces, cam, backend="fast")
+
+
+@needs_native
+def test_native_checks_indices_and_stays_finite_with_non_finite_vertices():
+    v, f = _scene()
+    r = D.rasterize(v, f, CAM, backend="native")
+    with pytest.raises(InputError):
+        D.interpolate(v, r, f[:5])  # not the faces that were rasterized
+    with pytest.raises(InputError):
+        D.interpolate(v[:4], r, f)
+    with pytest.raises(InputError):
+        D.antialias(r.mask.double(), r, v, f, CAM, torch.ones(5, 3, dtype=torch.bool))
+    bad = v.clone()
+    bad[9] = float("nan")  # a vertex of the floating triangle: the box is drawn alone
+    for backend in ("eager", "native"):
+        out = D.render_deferred(TriMesh(bad, f), CAM, D.DeferredSettings(backend=backend))
+        assert torch.equal(out.raster.face, D.rasterize(v, f[:12], CAM, backend="eager").face)
+        assert torch.isfinite(out.image).all() and torch.isfinite(out.depth).all()
+
+
+@needs_native
+def test_the_kernels_header_declares_what_its_source_defines():
+    from ipm import native
+
+    decl = native.declarations("deferred")
+    names = ["dr_zbuf"] + [f"dr_{op}_{way}_{t}" for op in ("bary", "interp", "aa") for way in ("fwd", "bwd")
+                           for t in "fd"] + ["dr_silhouette_f", "dr_silhouette_d"]
+    for name in names:
+        assert f"{name}(" in decl and callable(getattr(native.load("deferred").lib, name))
+    assert '#include "deferred.h"' in (native.HERE / "deferred.c").read_text()

@@ -3,8 +3,9 @@
 A kernel ``NAME`` is ``NAME.c`` (with whatever ``.inc`` files it includes from here) and ``NAME.h``, which
 declares the functions Python calls, once: ``NAME.c`` includes it, so the compiler checks the definitions
 against it, and :func:`load` hands the same declarations to cffi (``FFI.cdef``; lines starting with ``#``
-are for the compiler only) to bind the built library (ABI mode, ``FFI.dlopen``). Today one kernel:
-``soft`` (the soft silhouette, :mod:`ipm.render.soft`, backend "native").
+are for the compiler only) to bind the built library (ABI mode, ``FFI.dlopen``). Today two kernels:
+``soft`` (the soft silhouette, :mod:`ipm.render.soft`, backend "native") and ``deferred`` (the deferred
+renderer's z-buffer, barycentrics, interpolation and antialiasing, :mod:`ipm.render.deferred_native`).
 
 Building: the C compiler ``$CC`` (default ``cc``) with :data:`FLAGS` (the first set that compiles), about a
 second, once per source, compiler, flags and CPU; the library is cached under ``$IPM_CACHE_DIR`` (default
