@@ -60,12 +60,19 @@ HELPERS = {
     "checked": '''def checked(solid):
     """The tree's solid, checked: OpenCascade's booleans can fail on a tree (surfaces that touch or are
     tangent) and give an invalid or empty solid; then this says so rather than hand on a wrong one."""
-    if not solid.isValid() or solid.Volume() <= 0:
-        raise RuntimeError(
-            "OpenCascade's booleans failed for this tree: its solid is " + ("not valid" if not solid.isValid()
-            else "empty") + ". Export the tree as an OpenSCAD program instead (ipm generate TREE -o x.scad), "
-            "whose booleans (CGAL's) are exact.")
-    return solid''',
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
+
+    if solid.Volume() <= 0:
+        problem = "empty"
+    # BRepAlgoAPI_Check also finds solids that overlap (a fuse that kept its operands apart), which isValid passes
+    elif not (solid.isValid() and BRepAlgoAPI_Check(solid.wrapped).IsValid()):
+        problem = "not valid"
+    else:
+        return solid
+    raise RuntimeError(
+        f"OpenCascade's booleans failed for this tree: its solid is {problem} (they can fail where surfaces touch "
+        "or are tangent). Export the tree as an OpenSCAD program instead (ipm generate TREE -o x.scad), whose "
+        "booleans (CGAL's) are exact.")''',
     "box": '''def box(size_x, size_y, size_z):
     """A box of full sides, centered."""
     return cq.Solid.makeBox(size_x, size_y, size_z, vec(-size_x / 2, -size_y / 2, -size_z / 2))''',
