@@ -8,11 +8,12 @@ top of the file, only those the tree uses. ipm's conventions hold: Y is up, prim
 are full extents, cylinders and revolutions stand along Y.
 
 OpenCascade's booleans are not exact: where surfaces touch or are tangent they can give an invalid solid or
-a valid but wrong one. The programs avoid two causes measured on random trees (``results/exports``): a
-sphere's poles and seam lie on a slanted axis, off the faces of boxes and cylinders that are tangent to it
-along X, Y or Z; and unions are not ``.clean()``-ed, since merging their faces can make them invalid. A 3D
-program ends by checking its solid (``checked``): an invalid or empty one raises a ``RuntimeError`` that
-says OpenCascade's booleans failed and points to the OpenSCAD export.
+a valid but wrong one. The programs avoid two causes found on random trees (``benchmarks/cadquery_booleans.py``,
+``results/exports/cadquery_booleans.md``): a sphere's poles and seam lie on a slanted axis, off the faces of
+boxes and cylinders tangent to it along X, Y or Z; and unions are not ``.clean()``-ed, since merging their
+faces can make them invalid. A 3D program ends by checking its solid (``checked``: ``isValid`` and
+``BRepAlgoAPI_Check``, which also finds solids that overlap, and a positive volume); a failed check raises a
+``RuntimeError`` that says OpenCascade's booleans failed and points to the OpenSCAD export.
 """
 
 from __future__ import annotations
