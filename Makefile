@@ -102,7 +102,7 @@ cad: $(STAMP) ## install the cad extra (CadQuery with OCP and VTK, about 1.4 GB)
 table-exports: $(STAMP) openscad cad ## OpenSCAD and CadQuery programs of the tree presets and searched trees against the exact mesh, results/exports/
 	$(BIN)/python -m benchmarks.program_exports results/exports
 
-cadquery-booleans: $(STAMP) cad ## how often CadQuery programs of 82 trees (random ones on a grid too) give the right solid, results/exports/cadquery_booleans.md
+cadquery-booleans: $(STAMP) cad ## how often CadQuery programs of 162 trees (random ones on a grid too) give the right solid, results/exports/cadquery_booleans.md
 	$(BIN)/python -m benchmarks.cadquery_booleans results/exports
 
 exact-mesh: $(STAMP) ## exact CSG meshes against marching cubes: seconds, watertight, sharp edges kept (csg preset, 10 random trees), results/exact_mesh/ (seconds)

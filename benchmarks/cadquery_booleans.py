@@ -2,7 +2,7 @@
 
 The targets of :mod:`benchmarks.program_exports` (the tree presets and the searched trees of the structure
 table), the ten random 3-part truth trees and twenty random 5-part trees of
-:func:`benchmarks.table_structure.make_random`, and forty random 5-part trees whose sizes and centers lie on a
+:func:`benchmarks.table_structure.make_random`, and 120 random 5-part trees whose sizes and centers lie on a
 0.1 and 0.05 grid (:func:`grid_tree`): there boxes, cylinders and spheres touch or are tangent as in designed
 models, where OpenCascade's booleans fail. Each program is run and scored by
 :func:`benchmarks.program_exports.score` (volume IoU against the exact mesh at 128 segments): it matches
@@ -24,7 +24,7 @@ import numpy as np
 from benchmarks.common import commit, machine
 
 MATCH = 0.99
-GRID_TREES = 40
+GRID_TREES = 120
 
 
 def grid_tree(n: int, seed: int) -> dict:

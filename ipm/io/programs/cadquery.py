@@ -8,12 +8,13 @@ top of the file, only those the tree uses. ipm's conventions hold: Y is up, prim
 are full extents, cylinders and revolutions stand along Y.
 
 OpenCascade's booleans are not exact: where surfaces touch or are tangent they can give an invalid solid or
-a valid but wrong one. The programs avoid two causes found on random trees (``benchmarks/cadquery_booleans.py``,
-``results/exports/cadquery_booleans.md``): a sphere's poles and seam lie on a slanted axis, off the faces of
-boxes and cylinders tangent to it along X, Y or Z; and unions are not ``.clean()``-ed, since merging their
-faces can make them invalid. A 3D program ends by checking its solid (``checked``: ``isValid`` and
-``BRepAlgoAPI_Check``, which also finds solids that overlap, and a positive volume); a failed check raises a
-``RuntimeError`` that says OpenCascade's booleans failed and points to the OpenSCAD export.
+a valid but wrong one. The programs avoid the causes found on random trees (``benchmarks/cadquery_booleans.py``,
+``results/exports/cadquery_booleans.md``): a sphere's poles and seam lie on a slanted axis and a cylinder's or
+a cone's seam at an odd azimuth, off the faces of boxes tangent to them along X, Y or Z; unions are not
+``.clean()``-ed, since merging their faces can make them invalid. A 3D program ends by checking its solid
+(``checked``: ``isValid`` and ``BRepAlgoAPI_Check``, which also finds solids that overlap, and a positive
+volume); a failed check raises a ``RuntimeError`` that says OpenCascade's booleans failed and points to the
+OpenSCAD export.
 """
 
 from __future__ import annotations
@@ -54,6 +55,10 @@ HELPERS = {
     """A sphere, centered, its poles on a slanted axis: a pole or the seam on another solid's face or edge
     (a box or a cylinder tangent to the sphere along X, Y or Z) is where OpenCascade's booleans fail."""
     return cq.Solid.makeSphere(radius, vec(0, 0, 0), vec(0.5, 0.7, 0.3), angleDegrees1=-90, angleDegrees2=90)''',
+    "upright": '''def upright(solid):
+    """A solid of revolution made along +Y (a cylinder, a cone) turned about Y so that its seam is not at +Z,
+    where a box tangent to it would have a face along the seam (OpenCascade's booleans fail there)."""
+    return solid.rotate(vec(0, 0, 0), vec(0, 1, 0), 33.3)''',
     "fused": '''def fused(shapes):
     """The union of shapes (one shape as it is). Not .clean(): merging the faces of a fused solid can leave
     it invalid."""
@@ -137,7 +142,8 @@ HELPERS = {
 }
 
 # the helpers a helper calls
-_NEEDS = {"axis": ("vec",), "ball": ("vec",), "polygon": ("vec",), "round_rect": ("polygon", "vec"), "disc": ("vec",),
+_NEEDS = {"axis": ("vec",), "ball": ("vec",), "upright": ("vec",),
+          "polygon": ("vec",), "round_rect": ("polygon", "vec"), "disc": ("vec",),
           "box": ("vec",), "round_box": ("box", "vec"), "along_y": ("vec",), "capsule": ("vec",),
           "polyhedron": ("vec",),
           "half_space": ("vec",), "plane": ("vec",), "mirrored": ("half_space", "vec"),
@@ -159,9 +165,10 @@ for _kind, _text, _uses in (
     ("sphere", "ball({radius})", ("ball",)),
     ("box", "box({size_x}, {size_y}, {size_z})", ("box",)),
     ("round_box", "round_box({size_x}, {size_y}, {size_z}, {radius})", ("round_box",)),
-    ("cylinder", "cq.Solid.makeCylinder({radius}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0))", ("vec",)),
-    ("cone", "cq.Solid.makeCone({radius_bottom}, {radius_top}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0))",
-     ("vec",)),
+    ("cylinder", "upright(cq.Solid.makeCylinder({radius}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0)))",
+     ("upright",)),
+    ("cone", "upright(cq.Solid.makeCone({radius_bottom}, {radius_top}, {height}, vec(0, -{height} / 2, 0), "
+     "vec(0, 1, 0)))", ("upright",)),
     ("capsule", "capsule({radius}, {height})", ("capsule",)),
     ("torus", "cq.Solid.makeTorus({major}, {minor}, vec(0, 0, 0), vec(0, 1, 0))", ("vec",)),
     ("hex_prism", "along_y(cq.Solid.extrudeLinear(polygon([({radius} / math.cos(math.pi / 6) * math.cos(i * math.pi "
