@@ -166,8 +166,9 @@ def cylinder_at(x, y, z, r, h, name=None):
 
 # Trees where OpenCascade's booleans went wrong before (results/exports): the searched random_5_parts_0 of the
 # structure table, whose sphere part3 has its pole (on Z, then) 4e-4 inside the cylinder part4's side (the fuse
-# kept both as separate solids, and the last union was invalid); the same two parts alone; and a random tree on
-# a 0.05 grid (a cylinder tangent to a box's face) whose union .clean() made invalid.
+# kept both as separate solids, and the last union was invalid); the same two parts alone; and two random trees
+# on a 0.05 grid (benchmarks/cadquery_booleans.py): a cylinder tangent to a box's face whose union .clean() made
+# invalid, and a cylinder whose seam (at +Z, then) lay on the face that a cut box left.
 OCC_HARD = {
     "random_5_parts_0": node("union", [node("union", [node("union", [
         node("union", [sphere_at(-0.130077, 0.043813, -0.195367, 0.192730, "part1"),
@@ -182,6 +183,10 @@ OCC_HARD = {
         node("union", [node("union", [cylinder_at(-0.1, 0.15, 0, 0.25, 0.8), cylinder_at(0.1, -0.05, -0.15, 0.2, 0.4)]),
                        sphere_at(0.1, 0.05, -0.2, 0.85 / 3)]),
         box_at(-0.1, 0.1, 0, 0.9, 0.4, 0.7)]),
+    "seam on a cut face": node("union", [
+        node("subtraction", [node("union", [sphere_at(0, 0.25, 0.2, 0.85 / 3), cylinder_at(-0.05, -0.25, 0.1, 0.4, 0.6)]),
+                             box_at(-0.1, 0.2, -0.1, 0.8, 0.4, 0.8)]),
+        cylinder_at(-0.1, -0.1, 0.05, 0.25, 0.3)]),
 }
 
 
