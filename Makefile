@@ -102,6 +102,9 @@ cad: $(STAMP) ## install the cad extra (CadQuery with OCP and VTK, about 1.4 GB)
 table-exports: $(STAMP) openscad cad ## OpenSCAD and CadQuery programs of the tree presets and searched trees against the exact mesh, results/exports/
 	$(BIN)/python -m benchmarks.program_exports results/exports
 
+cadquery-booleans: $(STAMP) cad ## how often CadQuery programs of 162 trees (random ones on a grid too) give the right solid, results/exports/cadquery_booleans.md
+	$(BIN)/python -m benchmarks.cadquery_booleans results/exports
+
 exact-mesh: $(STAMP) ## exact CSG meshes against marching cubes: seconds, watertight, sharp edges kept (csg preset, 10 random trees), results/exact_mesh/ (seconds)
 	$(BIN)/python -m benchmarks.exact_mesh results/exact_mesh
 
@@ -111,7 +114,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure exact-mesh openscad cad table-exports clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

@@ -6,7 +6,10 @@ trees/*.json``) when they are there, else the ten random 3-part truth trees of t
 volume IoU (manifold3d booleans: vol(A ∩ B) / vol(A ∪ B)) of the OpenSCAD program rendered to STL
 (``openscad -o x.stl x.scad``, CGAL) and of the CadQuery program's solid exported to STL, each against
 :func:`ipm.sdf.exact.exact_mesh` at the same segments, and the seconds each took (writing, running,
-exporting). A language whose tool is not installed is skipped, and the table says so.
+exporting). A language whose tool is not installed is skipped, and the table says so. A program that fails
+(OpenCascade's booleans raising or leaving an invalid solid, which the CadQuery program's own check reports;
+openscad exiting with an error) or whose mesh is not closed and manifold is a row ``{"failed": why}``, counted
+in the table, not a crash.
 
 Usage: ``python -m benchmarks.program_exports OUT_DIR [SEGMENTS]``.
 """
@@ -30,6 +33,10 @@ RESOLUTION = 256     # marching cubes of the exact mesh's nodes without an exact
 TREES = Path("results/table_structure/trees")
 TOLERANCE = 1e-3     # CadQuery's STL: largest distance of the triangles from the B-rep (a 64-gon sags 1.2e-3 r)
 ANGULAR = 0.1        # and the largest angle between neighbouring triangles' normals, radians
+
+
+class ProgramFailed(Exception):
+    """A program ran and failed: its tool said why (one line)."""
 
 
 def targets() -> tuple[list[tuple[str, object]], str]:
@@ -57,18 +64,24 @@ def openscad_mesh(text: str, folder: Path):
     scad.write_text(text)
     done = subprocess.run(["openscad", "-o", str(stl), str(scad)], capture_output=True, text=True, timeout=600)
     if done.returncode != 0:
-        raise RuntimeError(f"openscad failed: {done.stderr.strip().splitlines()[-1:]}")
+        raise ProgramFailed(f"openscad failed: {done.stderr.strip().splitlines()[-1:]}")
     return trimesh.load(str(stl), force="mesh")
 
 
 def cadquery_mesh(text: str, folder: Path):
-    """The solid of a CadQuery program (its ``result``), exported to STL (trimesh.Trimesh)."""
+    """The solid of a CadQuery program (its ``result``), exported to STL (trimesh.Trimesh). :class:`ProgramFailed`
+    when running it fails in OpenCascade: its own check of the solid (``RuntimeError``), a null shape from a
+    boolean (cadquery's ``ValueError``) or OpenCascade's ``Standard_Failure``."""
     import cadquery as cq
     import trimesh
+    from OCP.Standard import Standard_Failure
 
     program, stl = folder / "x.py", folder / "x.stl"
     program.write_text(text)
-    result = runpy.run_path(str(program), run_name="ipm_program")["result"]
+    try:
+        result = runpy.run_path(str(program), run_name="ipm_program")["result"]
+    except (RuntimeError, ValueError, Standard_Failure) as e:
+        raise ProgramFailed(f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else '(no message)'}") from e
     cq.exporters.export(result, str(stl), tolerance=TOLERANCE, angularTolerance=ANGULAR)
     return trimesh.load(str(stl), force="mesh")
 
@@ -96,7 +109,8 @@ def reference_segments(suffix: str, segments: int) -> int:
 
 def score(tree, suffix: str, segments: int = SEGMENTS, reference=None) -> dict:
     """One program of ``tree`` run and compared with the exact mesh at :func:`reference_segments` (or
-    ``reference``): ``{iou, seconds}``, or ``{refused: line}``."""
+    ``reference``): ``{iou, seconds}``, ``{refused: line}``, or ``{failed: why, seconds}`` when the program fails
+    (:class:`ProgramFailed`) or its mesh is not closed and manifold."""
     from ipm.errors import InputError
     from ipm.io.programs import PROGRAMS, program_text
     from ipm.metrics import volume_iou
@@ -107,12 +121,18 @@ def score(tree, suffix: str, segments: int = SEGMENTS, reference=None) -> dict:
         text = program_text(tree, PROGRAMS[suffix], {"generator": "bench"}, segments=segments)
     except InputError as e:
         return {"refused": str(e).split(";")[0]}
-    with tempfile.TemporaryDirectory() as tmp:
-        mesh = RUNNERS[suffix][2](text, Path(tmp))
-    seconds = time.perf_counter() - t
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            mesh = RUNNERS[suffix][2](text, Path(tmp))
+    except ProgramFailed as e:
+        return {"failed": str(e), "seconds": round(time.perf_counter() - t, 2)}
+    seconds = round(time.perf_counter() - t, 2)
     if reference is None:
         reference = exact_mesh(tree, segments=reference_segments(suffix, segments), resolution=RESOLUTION).mesh
-    return {"iou": round(volume_iou(mesh, reference), 5), "seconds": round(seconds, 2)}
+    try:
+        return {"iou": round(volume_iou(mesh, reference), 5), "seconds": seconds}
+    except InputError as e:  # a mesh (the first: the program's) is not a closed 2-manifold
+        return {"failed": str(e), "seconds": seconds}
 
 
 def run(out_dir: Path, segments: int = SEGMENTS) -> list[dict]:
@@ -141,6 +161,8 @@ def _cell(r: dict) -> tuple[str, str]:
         return f"refused: {r['refused']}", "-"
     if "skipped" in r:
         return "not installed", "-"
+    if "failed" in r:
+        return f"failed: {r['failed']}", f"{r['seconds']:.2f}"
     return f"{r['iou']:.4f}", f"{r['seconds']:.2f}"
 
 
@@ -155,7 +177,9 @@ def report(rows: list[dict], source: str, segments: int) -> str:
         f"by manifold3d against `ipm.sdf.exact.exact_mesh`: at {segments} segments per circle for OpenSCAD "
         f"(its $fn = {segments}), at {FINE} for CadQuery (its solids' curves are exact, their STL within the "
         "tolerance). Seconds: writing, running and "
-        "exporting the program (not the exact mesh). A refusal names the first node without a counterpart.", "",
+        "exporting the program (not the exact mesh). A refusal names the first node without a counterpart; "
+        "a failure says why the program failed (OpenCascade's booleans: the CadQuery program checks its solid and "
+        "raises when it is not valid) or that its mesh was not closed and manifold.", "",
         f"Targets: every shipped tree preset, and {source}.", "",
         f"Machine: {machine()}; commit {commit()}.", "",
         "| target | OpenSCAD IoU | s | CadQuery IoU | s | exact mesh: nodes by marching cubes |",
@@ -167,7 +191,9 @@ def report(rows: list[dict], source: str, segments: int) -> str:
     for language in ("OpenSCAD", "CadQuery"):
         ious = [r[language]["iou"] for r in rows if "iou" in r[language]]
         worst = f", lowest IoU {min(ious):.4f}" if ious else ""
-        lines.append(f"- {language}: {len(ious)} of {len(rows)} targets written and run{worst}.")
+        failed = sum("failed" in r[language] for r in rows)
+        lines.append(f"- {language}: {len(ious)} of {len(rows)} targets written and run{worst}; {failed} failed "
+                     f"(the program raised or its mesh was not closed and manifold).")
     return "\n".join(lines) + "\n"
 
 

@@ -6,6 +6,15 @@ The 2D nodes make planar faces in XY that ``extrude`` and ``revolve`` lift. ipm'
 lacks (a plane, ipm's mirror and repeat, a revolve about Y, ...) are small functions defined once at the
 top of the file, only those the tree uses. ipm's conventions hold: Y is up, primitives are centered, sizes
 are full extents, cylinders and revolutions stand along Y.
+
+OpenCascade's booleans are not exact: where surfaces touch or are tangent they can give an invalid solid or
+a valid but wrong one. The programs avoid the causes found on random trees (``benchmarks/cadquery_booleans.py``,
+``results/exports/cadquery_booleans.md``): a sphere's poles and seam lie on a slanted axis and a cylinder's or
+a cone's seam at an odd azimuth, off the faces of boxes tangent to them along X, Y or Z; unions are not
+``.clean()``-ed, since merging their faces can make them invalid. A 3D program ends by checking its solid
+(``checked``: ``isValid`` and ``BRepAlgoAPI_Check``, which also finds solids that overlap, and a positive
+volume); a failed check raises a ``RuntimeError`` that says OpenCascade's booleans failed and points to the
+OpenSCAD export.
 """
 
 from __future__ import annotations
@@ -42,9 +51,34 @@ HELPERS = {
     face = polygon([(-size_x / 2, -size_y / 2), (size_x / 2, -size_y / 2), (size_x / 2, size_y / 2),
                     (-size_x / 2, size_y / 2)])
     return face.fillet2D(r, face.Vertices()) if r > 0 else face''',
+    "ball": '''def ball(radius):
+    """A sphere, centered, its poles on a slanted axis: a pole or the seam on another solid's face or edge
+    (a box or a cylinder tangent to the sphere along X, Y or Z) is where OpenCascade's booleans fail."""
+    return cq.Solid.makeSphere(radius, vec(0, 0, 0), vec(0.5, 0.7, 0.3), angleDegrees1=-90, angleDegrees2=90)''',
+    "upright": '''def upright(solid):
+    """A solid of revolution made along +Y (a cylinder, a cone) turned about Y so that its seam is not at +Z,
+    where a box tangent to it would have a face along the seam (OpenCascade's booleans fail there)."""
+    return solid.rotate(vec(0, 0, 0), vec(0, 1, 0), 33.3)''',
     "fused": '''def fused(shapes):
-    """The union of shapes (one shape as it is)."""
-    return shapes[0].fuse(*shapes[1:]).clean() if len(shapes) > 1 else shapes[0]''',
+    """The union of shapes (one shape as it is). Not .clean(): merging the faces of a fused solid can leave
+    it invalid."""
+    return shapes[0].fuse(*shapes[1:]) if len(shapes) > 1 else shapes[0]''',
+    "checked": '''def checked(solid):
+    """The tree's solid, checked: OpenCascade's booleans can fail on a tree (surfaces that touch or are
+    tangent) and give an invalid or empty solid; then this says so rather than hand on a wrong one."""
+    from OCP.BRepAlgoAPI import BRepAlgoAPI_Check
+
+    if solid.Volume() <= 0:
+        problem = "empty"
+    # BRepAlgoAPI_Check also finds solids that overlap (a fuse that kept its operands apart), which isValid passes
+    elif not (solid.isValid() and BRepAlgoAPI_Check(solid.wrapped).IsValid()):
+        problem = "not valid"
+    else:
+        return solid
+    raise RuntimeError(
+        f"OpenCascade's booleans failed for this tree: its solid is {problem} (they can fail where surfaces touch "
+        "or are tangent). Export the tree as an OpenSCAD program instead (ipm generate TREE -o x.scad), whose "
+        "booleans (CGAL's) are exact.")''',
     "box": '''def box(size_x, size_y, size_z):
     """A box of full sides, centered."""
     return cq.Solid.makeBox(size_x, size_y, size_z, vec(-size_x / 2, -size_y / 2, -size_z / 2))''',
@@ -83,7 +117,7 @@ HELPERS = {
     kept = shape.intersect(half_space(axis_index, offset))
     base = [0, 0, 0]
     base[axis_index] = offset
-    return kept.fuse(kept.mirror(("YZ", "XZ", "XY")[axis_index], vec(*base))).clean()''',
+    return kept.fuse(kept.mirror(("YZ", "XZ", "XY")[axis_index], vec(*base)))''',
     "repeated": '''def repeated(shape, axis_index, count, spacing):
     """ipm's repeat: count copies along an axis, spacing apart, centered at the origin."""
     copies = []
@@ -108,7 +142,8 @@ HELPERS = {
 }
 
 # the helpers a helper calls
-_NEEDS = {"axis": ("vec",), "polygon": ("vec",), "round_rect": ("polygon", "vec"), "disc": ("vec",),
+_NEEDS = {"axis": ("vec",), "ball": ("vec",), "upright": ("vec",),
+          "polygon": ("vec",), "round_rect": ("polygon", "vec"), "disc": ("vec",),
           "box": ("vec",), "round_box": ("box", "vec"), "along_y": ("vec",), "capsule": ("vec",),
           "polyhedron": ("vec",),
           "half_space": ("vec",), "plane": ("vec",), "mirrored": ("half_space", "vec"),
@@ -127,12 +162,13 @@ def node(*kinds: str, uses: tuple[str, ...] = ()):
 
 
 for _kind, _text, _uses in (
-    ("sphere", "cq.Solid.makeSphere({radius}, angleDegrees1=-90, angleDegrees2=90)", ()),
+    ("sphere", "ball({radius})", ("ball",)),
     ("box", "box({size_x}, {size_y}, {size_z})", ("box",)),
     ("round_box", "round_box({size_x}, {size_y}, {size_z}, {radius})", ("round_box",)),
-    ("cylinder", "cq.Solid.makeCylinder({radius}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0))", ("vec",)),
-    ("cone", "cq.Solid.makeCone({radius_bottom}, {radius_top}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0))",
-     ("vec",)),
+    ("cylinder", "upright(cq.Solid.makeCylinder({radius}, {height}, vec(0, -{height} / 2, 0), vec(0, 1, 0)))",
+     ("upright",)),
+    ("cone", "upright(cq.Solid.makeCone({radius_bottom}, {radius_top}, {height}, vec(0, -{height} / 2, 0), "
+     "vec(0, 1, 0)))", ("upright",)),
     ("capsule", "capsule({radius}, {height})", ("capsule",)),
     ("torus", "cq.Solid.makeTorus({major}, {minor}, vec(0, 0, 0), vec(0, 1, 0))", ("vec",)),
     ("hex_prism", "along_y(cq.Solid.extrudeLinear(polygon([({radius} / math.cos(math.pi / 6) * math.cos(i * math.pi "
@@ -146,8 +182,7 @@ for _kind, _text, _uses in (
     ("octahedron", "polyhedron([({radius}, 0, 0), (-{radius}, 0, 0), (0, {radius}, 0), (0, -{radius}, 0), "
      "(0, 0, {radius}), (0, 0, -{radius})], [(0, 2, 4), (0, 5, 2), (0, 4, 3), (0, 3, 5), (1, 4, 2), (1, 2, 5), "
      "(1, 3, 4), (1, 5, 3)])", ("polyhedron",)),
-    ("ellipsoid", "scaled(cq.Solid.makeSphere(1, angleDegrees1=-90, angleDegrees2=90), {radius_x}, {radius_y}, "
-     "{radius_z})", ("scaled",)),
+    ("ellipsoid", "scaled(ball(1), {radius_x}, {radius_y}, {radius_z})", ("scaled", "ball")),
     ("plane", "plane({tilt}, {azimuth}, {offset})", ("plane",)),
     ("circle", "disc({radius}, {radius})", ("disc",)),
     ("ellipse", "disc({radius_x}, {radius_y})", ("disc",)),
@@ -226,7 +261,7 @@ def statements(part: Part, names: _Names, out: list[str]) -> str:
 
 def helpers(program: Program) -> list[str]:
     """The helper functions the program calls, each once, in :data:`HELPERS`' order."""
-    want = {h for p in walk(program.root) for h in USES[p.kind]}
+    want = {h for p in walk(program.root) for h in USES[p.kind]} | ({"checked"} if program.root.dim == 3 else set())
     want |= {n for h in want for n in _NEEDS.get(h, ())}
     return [HELPERS[h] for h in HELPERS if h in want]
 
@@ -244,8 +279,9 @@ def write(program: Program, segments: int, header: list[str]) -> str:
         lines += ["", "", text]
     body: list[str] = []
     root = statements(program.root, _Names(name for name, _, _ in program.variables), body)
+    result = f"checked({root})" if program.root.dim == 3 else root
     lines += ["", "", "# the shape, part by part"] + body + [
-        f"result = {root}", "", "if \"show_object\" in globals():  # CQ-editor", "    show_object(result)",
+        f"result = {result}", "", "if \"show_object\" in globals():  # CQ-editor", "    show_object(result)",
         "elif __name__ == \"__main__\":", "    cq.exporters.export(result, __file__.rsplit(\".\", 1)[0] + \".step\")"]
     return "\n".join(lines) + "\n"
 
