@@ -211,7 +211,6 @@ class SdfShape:
         changes), vertices differentiable in ``theta`` by the implicit function theorem, posed (differentiable
         in the pose); None where the grid holds no surface."""
         from ipm.render import sdf_mesh_silhouette as M
-        from ipm.render.soft import soft_silhouette
 
         tree = self.gen.tree_for(discrete)
         th = theta.to(self.dtype)
@@ -226,8 +225,7 @@ class SdfShape:
         if iso.n_faces == 0:
             return None
         verts = pose.to_world(M.surface_vertices(lambda p: tree.sdf(th, p), iso.verts.to(self.dtype)))
-        return torch.stack([M.fill_interior(soft_silhouette(verts, iso.faces, c.to(self.dtype), sigma=sigma), sigma)
-                            for c in cams])
+        return torch.stack([M.mesh_silhouette(verts, iso.faces, c.to(self.dtype), sigma) for c in cams])
 
     def target_loss(self, theta, discrete, pose, target):
         """Mean ``|f|`` at the target's surface points plus 0.1 x the occupancy loss at points in ``[-1.1, 1.1]^3``."""
