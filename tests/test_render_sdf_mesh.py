@@ -77,14 +77,15 @@ def test_silhouettes_agree_with_the_sphere_traced_ones(kind, which):
 @pytest.mark.parametrize("name", ["chair", "wind_rose"])
 def test_thin_parts_need_a_finer_grid(name):
     """The chair's legs and slats and the wind rose's points are 2 to 4 px wide here: the default grid
-    (:data:`~ipm.render.sdf_mesh_silhouette.CELL_PX`, 2 px) keeps them at IoU 0.96, a grid of 1 px at 0.98."""
+    (:data:`~ipm.render.sdf_mesh_silhouette.CELL_PX`, 2.5 px) keeps them at IoU 0.95 (0.96 at 2 px), a grid of
+    1 px at 0.98."""
     f, lo, hi = unit_field(get_generator(name).tree)
     traced = sdf_silhouette(f, CAM, lo, hi) > 0.5
     h = pixel_footprint(CAM, (lo + hi) / 2)
     with torch.no_grad():
         coarse = sdf_mesh_silhouette(f, CAM, lo, hi, sigma=0.01) > 0.5
         fine = sdf_mesh_silhouette(f, CAM, lo, hi, sigma=0.01, spacing=h) > 0.5
-    assert iou(coarse, traced) >= 0.95
+    assert iou(coarse, traced) >= 0.94
     assert iou(fine, traced) >= 0.98
 
 

@@ -224,8 +224,11 @@ class SdfShape:
         iso = self._iso[1]
         if iso.n_faces == 0:
             return None
-        verts = pose.to_world(M.surface_vertices(lambda p: tree.sdf(th, p), iso.verts.to(self.dtype)))
-        return torch.stack([M.mesh_silhouette(verts, iso.faces, c.to(self.dtype), sigma) for c in cams])
+        local = iso.verts.to(self.dtype)
+        cams = [c.to(self.dtype) for c in cams]
+        parts = [M.interior(pose.to_world(local).detach(), iso.faces, c, sigma) for c in cams]
+        verts = pose.to_world(M.moved_vertices(lambda p: tree.sdf(th, p), local, [f for _, f in parts]))
+        return torch.stack([M.mesh_silhouette(verts, f, c, sigma, deep) for (deep, f), c in zip(parts, cams)])
 
     def target_loss(self, theta, discrete, pose, target):
         """Mean ``|f|`` at the target's surface points plus 0.1 x the occupancy loss at points in ``[-1.1, 1.1]^3``."""
