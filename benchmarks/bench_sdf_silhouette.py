@@ -8,11 +8,12 @@ silhouettes through the differentiable iso-surface mesh (``sdf_silhouette="mesh"
 (``ipm fit dishes --preset mug --masks M --discrete none --budget 300``). Masks, one view at 128^2:
 ``ipm render ../shared/data/real/vessels/ocrtoc_mug.ply --up z --views 1 --size 128`` (the README's example
 scan) and ``ipm render mug --views 1 --size 128`` (the preset itself). Each fit runs ``REPEATS`` times, the
-cases interleaved; the table gives medians. "evals/s" counts the fit's evaluations over the time of its last
-one (the trajectory's ``t``: the search and polish), "evals/s, whole call" over the whole ``ipm.fit`` call
-(reading the masks, writing the run folder: meshes at resolution 128, overlays, the loss plot). Final IoU:
-the exact mask IoU of the result (marching cubes at 128 for the SDF tree, the hard rasterizer) against the
-target mask.
+cases interleaved; the table gives medians, and the median of each repeat's ratio of a case's rate to the dishes
+fit's next to it (the load of a shared machine changes from minute to minute). "evals/s" counts the fit's
+evaluations over the time of its last one (the trajectory's ``t``: the search and polish), "evals/s, whole
+call" over the whole ``ipm.fit`` call (reading the masks, writing the run folder: meshes at resolution 128,
+overlays, the loss plot). Final IoU: the exact mask IoU of the result (marching cubes at 128 for the SDF tree,
+the hard rasterizer) against the target mask.
 """
 
 from __future__ import annotations
@@ -33,10 +34,11 @@ SCAN = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply")
 REPEATS = 3
 BUDGET = 300
 COMMAND = "IPM_THREADS=1 python -m benchmarks.bench_sdf_silhouette"
+DISHES = "dishes, mug preset (mesh generator)"
 CASES = {  # name -> (generator, settings beyond the README's)
     "mug tree, iso-surface mesh (new default)": ("mug", {"sdf_silhouette": "mesh"}),
     "mug tree, sphere-traced (reference)": ("mug", {"sdf_silhouette": "trace"}),
-    "dishes, mug preset (mesh generator)": ("dishes", {"preset": "mug"}),
+    DISHES: ("dishes", {"preset": "mug"}),
 }
 
 
@@ -79,10 +81,13 @@ def run(out_dir: Path) -> list[dict]:
             for rep in range(REPEATS):
                 for i, (name, (gen, settings)) in enumerate(CASES.items()):
                     runs[name].append(_fit(gen, masks, tmp / f"run{len(rows)}_{rep}_{i}", settings))
+            base = runs[DISHES]
             for name, rs in runs.items():
+                ratio = statistics.median(r["loop"] / b["loop"] for r, b in zip(rs, base))
                 rows.append({"target": target, "case": name, "evaluations": rs[0]["evals"],
                              "evals/s (median)": round(statistics.median(r["loop"] for r in rs), 1),
                              "evals/s each": " / ".join(f"{r['loop']:.1f}" for r in rs),
+                             "rate / dishes' (median)": round(ratio, 2),
                              "evals/s, whole call": round(statistics.median(r["call"] for r in rs), 1),
                              "final IoU (median)": round(statistics.median(r["iou"] for r in rs), 4),
                              "final IoU each": " / ".join(f"{r['iou']:.4f}" for r in rs)})
