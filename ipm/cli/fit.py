@@ -94,7 +94,7 @@ SubdivideLevelsOpt = Annotated[int, typer.Option("--subdivide-levels", help="lev
 LodOpt = Annotated[str | None, typer.Option(help="mesh generators: level of detail (low, medium, high)")]
 SdfSilhouetteOpt = Annotated[str, typer.Option("--sdf-silhouette", help=(
     "SDF generators: silhouettes of a marching-cubes mesh made differentiable by the implicit function "
-    "theorem (mesh, the default) or sphere-traced pixel by pixel (trace: the reference, about 10x slower)"))]
+    "theorem (mesh, the default) or sphere-traced pixel by pixel (trace: the reference, 2.5 to 3.5x slower)"))]
 PolishOpt = Annotated[float | None, typer.Option(help=(
     "share of the budget for the final refinement of the best candidates with every parameter free "
     "(default 0.15; a photo's details: 0.4)"))]

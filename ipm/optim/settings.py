@@ -33,8 +33,9 @@ CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 InitMode = Literal["both", "learned", "presets"]
 INIT_MODES: tuple[str, ...] = get_args(InitMode)
 # how SDF generators' silhouettes are rendered (ipm.optim.shapes.SdfShape): "mesh", a differentiable marching-
-# cubes mesh under the mesh generators' soft rasterizer (ipm.render.sdf_mesh_silhouette; about 10x faster), or
-# "trace", sphere tracing every pixel's ray (ipm.render.sdf_silhouette; the reference)
+# cubes mesh under the mesh generators' soft rasterizer (ipm.render.sdf_mesh_silhouette; the mug fit 2.5 to 3.5x
+# faster, results/perf/sdf_silhouette.md), or "trace", sphere tracing every pixel's ray (ipm.render.sdf_silhouette;
+# the reference)
 SdfSilhouette = Literal["mesh", "trace"]
 SDF_SILHOUETTES: tuple[str, ...] = get_args(SdfSilhouette)
 
