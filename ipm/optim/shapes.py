@@ -226,7 +226,8 @@ class SdfShape:
             return None
         local = iso.verts.to(self.dtype)
         cams = [c.to(self.dtype) for c in cams]
-        parts = [M.interior(pose.to_world(local).detach(), iso.faces, c, sigma) for c in cams]
+        seen = pose.to_world(local).detach()
+        parts = [M.interior(seen, iso.faces, c, sigma) for c in cams]
         verts = pose.to_world(M.moved_vertices(lambda p: tree.sdf(th, p), local, [f for _, f in parts]))
         return torch.stack([M.mesh_silhouette(verts, f, c, sigma, deep) for (deep, f), c in zip(parts, cams)])
 
