@@ -153,7 +153,8 @@ class SdfShape:
         self._target: tuple | None = None
         self.traced = getattr(settings, "sdf_silhouette", "mesh") == "trace"
         self.polish_sigma = 1.0 if self.traced else POLISH_SIGMA_FACTOR
-        self._iso: tuple | None = None  # (key, local iso-surface): pose-only changes keep the mesh
+        # ((theta, discrete, spacing), local iso-surface, the tree's box): pose-only changes keep the mesh
+        self._iso: tuple | None = None
 
     def vertices(self, theta, discrete):
         """Vertices ``(V, 3)`` float64 of a coarse marching-cubes mesh (48 samples along the longest side)."""
@@ -214,13 +215,17 @@ class SdfShape:
 
         tree = self.gen.tree_for(discrete)
         th = theta.to(self.dtype)
-        lo, hi = tree.with_theta(theta.detach().double()).bounds()
+        shape_key = (theta.detach().double().cpu().numpy().tobytes(), tuple(sorted(discrete.items())))
+        if self._iso is None or self._iso[0][:2] != shape_key:
+            lo, hi = tree.with_theta(theta.detach().double()).bounds()
+        else:
+            lo, hi = self._iso[2]
         to_local = pose.size / 2.0 / float(pose.scale.detach())
         t = pose.t.detach().double().cpu().numpy()
         h = M.grid_spacing(lo, hi, min(M.pixel_footprint(c, t) for c in cams) * to_local)
-        key = (theta.detach().double().cpu().numpy().tobytes(), tuple(sorted(discrete.items())), h)
-        if self._iso is None or self._iso[0] != key:
-            self._iso = (key, M.iso_surface(lambda p: tree.sdf(th.detach(), p), lo, hi, h, dtype=self.dtype))
+        if self._iso is None or self._iso[0] != (*shape_key, h):
+            iso = M.iso_surface(lambda p: tree.sdf(th.detach(), p), lo, hi, h, dtype=self.dtype)
+            self._iso = ((*shape_key, h), iso, (lo, hi))
         iso = self._iso[1]
         if iso.n_faces == 0:
             return None
