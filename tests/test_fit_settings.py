@@ -34,6 +34,7 @@ BAD = {
     "polish": ("polish", [-0.1, 1.5, NAN, INF, True]),
     "coarse_to_fine": ("coarse_to_fine", [0, "false"]),
     "resolution": ("resolution", [7, 0, 64.0, True, "high"]),
+    "sdf_silhouette": ("sdf_silhouette", ["raster", 1, None, True]),
     "ties": ("ties", [1.0, None]),
     "depth_weight": ("depth_weight", [-1.0, NAN, INF, "heavy", True]),
     "parts_weight": ("parts_weight", [-0.5, NAN, None]),

@@ -32,6 +32,12 @@ CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 # K = 1 targets "learned" gains on average but loses on the targets a preset already fits (results/proposals.md)
 InitMode = Literal["both", "learned", "presets"]
 INIT_MODES: tuple[str, ...] = get_args(InitMode)
+# how SDF generators' silhouettes are rendered (ipm.optim.shapes.SdfShape): "mesh", a differentiable marching-
+# cubes mesh under the mesh generators' soft rasterizer (ipm.render.sdf_mesh_silhouette; the mug fit 2.5 to 3.5x
+# faster, results/perf/sdf_silhouette.md), or "trace", sphere tracing every pixel's ray (ipm.render.sdf_silhouette;
+# the reference)
+SdfSilhouette = Literal["mesh", "trace"]
+SDF_SILHOUETTES: tuple[str, ...] = get_args(SdfSilhouette)
 
 
 @dataclass
@@ -75,6 +81,9 @@ class FitSettings:
     subdivide_levels: Annotated[int, Meta(ge=1, le=3, extra={"noun": "a number of levels"})] = 1
     # SDF generators: meshing of the result
     resolution: Annotated[int, Meta(ge=8, extra={"noun": "a meshing resolution"})] = 128
+    # SDF generators: how silhouettes are rendered (SdfSilhouette); sigma is in squared pixels for "mesh" (as
+    # for meshes), in world units for "trace"
+    sdf_silhouette: SdfSilhouette = "mesh"
     ties: bool = True                # discrete values the input cannot tell apart go to the preset's (break_ties)
     # description length: added to the loss per part a discrete value adds (Param.adds: a handle, a wing,
     # a roof-top box), so that a part stays only where it lowers the loss by more (PART_COST)

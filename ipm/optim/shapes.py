@@ -5,8 +5,9 @@ A fit needs, of its generator: the vertices of a shape at given parameters (to m
 mesh is), its soft silhouettes in the target's cameras, and its distance to a target mesh. The adapters are
 the only code of the fit that knows whether the generator makes meshes (:class:`MeshShape`: the generator's
 mesh, subdivided where ``FitSettings.subdivide`` says so, by the same sparse operator as ``ipm jacobian
---subdivide``) or signed distances (:class:`SdfShape`: the field, sphere-traced for silhouettes, meshed by
-marching cubes for pictures). A new kind of generator is one new adapter class registered in :data:`SHAPES`.
+--subdivide``) or signed distances (:class:`SdfShape`: the field, its silhouettes those of a marching-cubes
+mesh made differentiable by the implicit function theorem, or sphere-traced; meshed by marching cubes for
+pictures). A new kind of generator is one new adapter class registered in :data:`SHAPES`.
 
 A :class:`Pose` maps the generator's coordinates to the world: its canonical frame (bounding-box center
 ``center``, longest side ``size``) to the origin and a longest side of 2, then scaled by ``scale``, turned by
@@ -142,14 +143,18 @@ class MeshShape:
 
 
 class SdfShape:
-    """An SDF generator's field: silhouettes by sphere tracing, meshes by marching cubes (not differentiable)."""
+    """An SDF generator's field: silhouettes through a differentiable iso-surface mesh (``FitSettings.sdf_silhouette``
+    "mesh", the default) or by sphere tracing ("trace"), meshes by marching cubes (not differentiable)."""
 
     has_faces = False
-    polish_sigma = 1.0
 
     def __init__(self, gen, settings, dtype: torch.dtype):
         self.gen, self.s, self.dtype = gen, settings, dtype
         self._target: tuple | None = None
+        self.traced = getattr(settings, "sdf_silhouette", "mesh") == "trace"
+        self.polish_sigma = 1.0 if self.traced else POLISH_SIGMA_FACTOR
+        # ((theta, discrete, spacing), local iso-surface, the tree's box): pose-only changes keep the mesh
+        self._iso: tuple | None = None
 
     def vertices(self, theta, discrete):
         """Vertices ``(V, 3)`` float64 of a coarse marching-cubes mesh (48 samples along the longest side)."""
@@ -181,13 +186,55 @@ class SdfShape:
         return f, c - r, c + r
 
     def silhouettes(self, theta, discrete, pose, cams, sigma_factor, mesh=None):
-        """Sphere-traced soft silhouettes ``(K, H, W)`` of the posed field (``mesh`` is ignored)."""
+        """Soft silhouettes ``(K, H, W)`` of the posed field (``mesh`` is ignored): of its iso-surface mesh
+        (:meth:`mesh_silhouettes`), blur the settings' (squared pixels, default 1) times ``sigma_factor``; or
+        sphere-traced, blur the settings' (world units, default half a pixel's footprint) times ``sigma_factor``."""
+        from ipm.render import sdf_mesh_silhouette as M
         from ipm.render.sdf_silhouette import default_sigma, sdf_silhouette
 
+        if not self.traced:
+            sigma = (self.s.sigma or 1.0) * sigma_factor
+            sil = self.mesh_silhouettes(theta, discrete, pose, cams, sigma)
+            if sil is not None:
+                return sil
+            f, lo, hi = self.field(theta, discrete, pose)  # no surface on the grid: traced, at the same blur
+            return torch.stack([M.traced_fallback(f, c.to(self.dtype), lo, hi, sigma,
+                                                  M.pixel_footprint(c, (lo + hi) / 2), self.dtype) for c in cams])
         f, lo, hi = self.field(theta, discrete, pose)
         return torch.stack([sdf_silhouette(f, c.to(self.dtype), lo, hi,
                                            sigma=(self.s.sigma or default_sigma(c, lo, hi)) * sigma_factor)
                             for c in cams])
+
+    def mesh_silhouettes(self, theta, discrete, pose, cams, sigma: float) -> torch.Tensor | None:
+        """Soft silhouettes ``(K, H, W)``, blur ``sigma`` px^2, of the field's iso-surface
+        (:mod:`ipm.render.sdf_mesh_silhouette`): marching cubes in the generator's coordinates on a grid of
+        :data:`~ipm.render.sdf_mesh_silhouette.CELL_PX` pixels at the pose's scale (kept while only the pose
+        changes), vertices differentiable in ``theta`` by the implicit function theorem, posed (differentiable
+        in the pose); None where the grid holds no surface."""
+        from ipm.render import sdf_mesh_silhouette as M
+
+        tree = self.gen.tree_for(discrete)
+        th = theta.to(self.dtype)
+        shape_key = (theta.detach().double().cpu().numpy().tobytes(), tuple(sorted(discrete.items())))
+        if self._iso is None or self._iso[0][:2] != shape_key:
+            lo, hi = tree.with_theta(theta.detach().double()).bounds()
+        else:
+            lo, hi = self._iso[2]
+        to_local = pose.size / 2.0 / float(pose.scale.detach())
+        t = pose.t.detach().double().cpu().numpy()
+        h = M.grid_spacing(lo, hi, min(M.pixel_footprint(c, t) for c in cams) * to_local)
+        if self._iso is None or self._iso[0] != (*shape_key, h):
+            iso = M.iso_surface(lambda p: tree.sdf(th.detach(), p), lo, hi, h, dtype=self.dtype)
+            self._iso = ((*shape_key, h), iso, (lo, hi))
+        iso = self._iso[1]
+        if iso.n_faces == 0:
+            return None
+        local = iso.verts.to(self.dtype)
+        cams = [c.to(self.dtype) for c in cams]
+        seen = pose.to_world(local).detach()
+        parts = [M.interior(seen, iso.faces, c, sigma) for c in cams]
+        verts = pose.to_world(M.moved_vertices(lambda p: tree.sdf(th, p), local, [f for _, f in parts]))
+        return torch.stack([M.mesh_silhouette(verts, f, c, sigma, deep) for (deep, f), c in zip(parts, cams)])
 
     def target_loss(self, theta, discrete, pose, target):
         """Mean ``|f|`` at the target's surface points plus 0.1 x the occupancy loss at points in ``[-1.1, 1.1]^3``."""

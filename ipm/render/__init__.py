@@ -2,7 +2,9 @@
 depth and normals, and shaded previews.
 
 Shading is kept apart from rasterization: :mod:`~ipm.render.soft` (SoftRas silhouettes of meshes,
-differentiable), :mod:`~ipm.render.sdf_silhouette` (silhouettes, depth and normals of SDFs),
+differentiable), :mod:`~ipm.render.sdf_mesh_silhouette` (silhouettes of SDFs through a differentiable
+iso-surface mesh, the fits' default), :mod:`~ipm.render.sdf_silhouette` (sphere-traced silhouettes, the
+reference, and depth and normals of SDFs),
 :mod:`~ipm.render.raster` (hard z-buffer for evaluation masks, depth, normals, face ids) and
 :mod:`~ipm.render.preview` (Lambert shading into PNG). Camera math lives in :mod:`~ipm.render.camera`.
 :mod:`~ipm.render.deferred` is the differentiable deferred renderer in nvdiffrast's four operations

@@ -1,5 +1,8 @@
 """Soft silhouettes, depth and normals of signed distance functions, by rays through pixel centers.
 
+The reference for silhouettes: fits use the faster :mod:`ipm.render.sdf_mesh_silhouette` by default
+(``FitSettings.sdf_silhouette``), tested against this one.
+
 Silhouette: for each pixel ray, ``m = min_t f(o + t d)`` over the ray's stretch inside the box
 ``[lo, hi]`` (padded by the blur's reach), and ``silhouette = sigmoid(-m / sigma)``: about 1 where the ray
 enters the solid, 0 where it passes far from it. The minimum is found without gradients:
