@@ -44,9 +44,10 @@ def _settings_from_json(d: dict):
     if not isinstance(d, dict):
         raise InputError(f"settings: expected an object, got {type(d).__name__}")
     known = {f.name for f in fields(FitSettings)}
-    # runs recorded before the description length, the anchor and the learned proposals replay without them;
-    # before the strategies owned their settings, memetic's and nlopt's were fields of their own
-    d = {"part_cost": 0.0, "anchor": 0.0, "init": "presets", **d}
+    # runs recorded before the description length, the anchor and the learned proposals replay without them,
+    # and those before the iso-surface silhouettes with the sphere tracer they ran; before the strategies owned
+    # their settings, memetic's and nlopt's were fields of their own
+    d = {"part_cost": 0.0, "anchor": 0.0, "init": "presets", "sdf_silhouette": "trace", **d}
     old = {k: d.pop(k) for k in ("memetic", "nlopt") if k in d}
     if old:
         d["search"] = {**old, **(d.get("search") or {})}

@@ -108,3 +108,15 @@ def test_a_run_recorded_with_the_old_strategy_settings_resumes(masks, tmp_path):
     (run / "settings.json").write_text(json.dumps(data))
     again = ipm.fit(Boxes(), run_dir=run, resume=True)
     assert again.params == first.params
+
+
+def test_an_sdf_run_recorded_before_the_mesh_silhouettes_resumes_with_the_tracer(masks, tmp_path):
+    """Runs of SDF generators recorded before ``sdf_silhouette`` existed were sphere-traced; their settings lack the
+    key, and they resume (replaying their trajectory) with the tracer, not the new default."""
+    run = tmp_path / "run"
+    first = ipm.fit("csg", masks=masks, discrete="none", budget=6, seed=0, run_dir=run, sdf_silhouette="trace")
+    data = json.loads((run / "settings.json").read_text())
+    assert data["settings"].pop("sdf_silhouette") == "trace"
+    (run / "settings.json").write_text(json.dumps(data))
+    again = ipm.fit("csg", run_dir=run, resume=True)
+    assert again.params == first.params
