@@ -288,3 +288,30 @@ def test_a_placed_tree_lies_on_its_target_and_fits_hold_its_frame():
     prob = Problem(gen, MeshTarget(truth_mesh(16)), FitSettings(budget=2))
     free = {gen.spec.continuous[i].name for i in prob.free}
     assert free and not free & held
+
+
+def test_cli_edits_choose_what_the_search_may_propose(tmp_path):
+    """``--edits`` without smooth gives a tree of hard booleans, which exports as an OpenSCAD program; a bad name,
+    --edits without --structure search and --edits on a resume are one line each."""
+    from ipm.io.export import export_mesh
+
+    target = tmp_path / "truth.obj"
+    export_mesh(truth_mesh(48), target, sidecar=False)
+    run = tmp_path / "run"
+    p = _ipm("fit", "--structure", "search", "--target-mesh", str(target), "-o", str(run), "--budget", "1500",
+             "--edits", "add,replace,delete,merge,mirror,turn")
+    assert p.returncode == 0, p.stderr
+    text = (run / "tree.json").read_text()
+    assert '"round"' not in text and "smooth" not in text
+    assert json.loads((run / "settings.json").read_text())["structure"]["edits"] == [
+        "add", "replace", "delete", "merge", "mirror", "turn"]
+    g = _ipm("generate", str(run), "-o", str(tmp_path / "a.scad"))
+    assert g.returncode == 0, g.stderr
+    for args, msg in ((["--structure", "search", "--target-mesh", str(target), "-o", str(tmp_path / "r"), "--edits",
+                        "add,grow"], "structure edits: expected some of"),
+                      (["dishes", "--masks", str(tmp_path), "-o", str(tmp_path / "r"), "--edits", "add"],
+                       "--edits: expected with --structure search"),
+                      (["--resume", str(run), "--edits", "add"], "keeps the edits it was started with")):
+        p = _ipm("fit", *args)
+        err = p.stderr.strip().splitlines()
+        assert p.returncode == 2 and len(err) == 1 and msg in err[0], p.stderr

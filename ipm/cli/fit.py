@@ -102,6 +102,9 @@ StructureOpt = Annotated[str, typer.Option(help=(
     "fixed: fit GEN's parameters; search: search the tree itself (which primitives, joined how) and its "
     "parameters, from --target-mesh or --masks of 2+ views, starting from GEN (a tree file) if given; "
     "writes tree.json, which ipm generate loads"))]
+EditsOpt = Annotated[str | None, typer.Option(help=(
+    "--structure search: the edits it may propose, comma-separated (ipm list edits; default all). Leave out "
+    "smooth for a tree of hard booleans, which ipm generate --mesher exact meshes and -o x.scad / x.py exports"))]
 ResumeOpt = Annotated[Path | None, typer.Option(help="continue an interrupted run folder")]
 
 
@@ -154,6 +157,7 @@ def register(app: typer.Typer) -> None:
         sdf_silhouette: SdfSilhouetteOpt = "mesh",
         polish: PolishOpt = None,
         structure: StructureOpt = "fixed",
+        edits: EditsOpt = None,
         resume: ResumeOpt = None,
         library: LibraryOpt = None,
         device: DeviceOpt = "auto",
@@ -172,8 +176,11 @@ def _run(o: SimpleNamespace) -> None:
                                  ("--shape", o.shape), ("--preset", o.preset)) if v is not None]
         if others:
             raise UsageError(f"--structure search: takes a mesh or masks only; got {' and '.join(others)}")
-        _fit_structure(o.gen, o.target_mesh, o.up, o.masks, o.output, o.resume, o.budget, o.seed, o.device, o.json_out)
+        _fit_structure(o.gen, o.target_mesh, o.up, o.masks, o.output, o.resume, o.budget, o.seed, o.device, o.json_out,
+                       edits=o.edits)
         return
+    if o.edits is not None:
+        raise UsageError("--edits: expected with --structure search (the edits of the structure search)")
     o.budget = FIT_BUDGET if o.budget is None else o.budget
     if o.shape is not None or o.profile or o.extrude is not None:
         if o.shape is None:
@@ -350,7 +357,8 @@ def _is_structure_run(run_dir: Path) -> bool:
 
 
 def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: Path | None, output: Path | None,
-                   resume: Path | None, budget: int, seed: int, device: str, json_out: bool) -> None:
+                   resume: Path | None, budget: int, seed: int, device: str, json_out: bool, *,
+                   edits: str | None = None) -> None:
     """``ipm fit --structure search``: :func:`ipm.fitting.fit_structure` with a progress bar."""
     from rich.console import Console
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
@@ -377,6 +385,8 @@ def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: 
                              "--resume it")
     elif output is not None and output != resume:
         raise UsageError("--resume RUN_DIR continues that folder; leave out -o or give the same folder")
+    elif edits is not None:
+        raise UsageError("--edits: a resumed search keeps the edits it was started with; leave out --edits")
     from ipm.optim.structure import StructureSettings
 
     if budget is not None and budget < 1:
@@ -402,8 +412,9 @@ def _fit_structure(start: str | None, target_mesh: Path | None, up: str, masks: 
         if resume is not None:
             res = fit_structure(run_dir=resume, resume=True, progress=progress, device=dev)
         else:
+            chosen = {} if edits is None else {"edits": tuple(e.strip() for e in edits.split(",") if e.strip())}
             res = fit_structure(target_mesh=target_mesh, up=up, masks=masks, start=start, run_dir=output,
-                                progress=progress, device=dev, budget=budget, seed=seed)
+                                progress=progress, device=dev, budget=budget, seed=seed, **chosen)
     finally:
         if started and started[0]:
             bar.stop()
