@@ -138,10 +138,15 @@ def test_fine_ray_silhouettes_match_the_rasterizer_within_a_pixel(two_parts):
     # a ray whose pixel the exact rasterizer decides otherwise passes within a pixel's footprint of the solid
     assert float(sil[wrong].abs().amax()) < pixel and 0 < int(wrong.sum()) < 0.03 * len(sil)
     assert (s.ray_weight == 1).sum() > (s.ray_weight == 4).sum() / 4
+    # a tree of the box alone misses the cylinder's rays: they pass through the cylinder, never the box's middle
+    along = C.missed_cells(TWO_PARTS["children"][0], s)
+    at = [int(torch.argmin((s.grid - torch.tensor(c, dtype=s.grid.dtype)).norm(dim=1))) for c in
+          ((0.25, 0.35, 0.0), (0.0, -0.1, 0.0))]
+    assert bool(along[at[0]]) and not bool(along[at[1]])
 
 
 def test_search_from_masks_recovers_a_two_part_tree():
-    cams, masks = exact_masks(BOX_SPHERE, 3)
+    cams, masks = exact_masks(BOX_SPHERE, 2)
     samples = mask_samples(masks, cams, volume=2000, grid=24, rays=16, fine_rays=32).to(dtype=torch.float32)
     r = search(samples, StructureSettings(budget=1200, polish=100, steps=20, grid=24, proposals=6, rounds=3))
     assert r.signature == signature(BOX_SPHERE) and r.iou > 0.95
