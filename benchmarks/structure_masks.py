@@ -10,7 +10,7 @@ search runs in its own process, one torch thread, on the package of the base com
 this tree, the two alternating (old, new, old, new, ...) so that the machine's load falls on both alike; the
 search is deterministic, so repeats differ only in seconds.
 
-Usage: ``python -m benchmarks.structure_masks [OUT_DIR] [--base COMMIT] [--repeat N] [--budget B]``; writes
+Usage: ``python -m benchmarks.structure_masks [OUT_DIR] [--base COMMIT] [--repeat 2,1] [--budget B]``; writes
 ``OUT_DIR/structure_masks.md`` and ``.json`` (default ``results/``).
 """
 
@@ -88,13 +88,14 @@ def _data_root() -> Path:
 
 
 def main(argv: list[str] | None = None) -> None:
+    """Run the comparison (module docstring) and write its table."""
     from benchmarks import common
     from ipm.optim.structure import StructureSettings
 
     p = argparse.ArgumentParser()
     p.add_argument("out", nargs="?", default="results")
     p.add_argument("--base", default=BASE)
-    p.add_argument("--repeat", type=int, default=2)
+    p.add_argument("--repeat", default="2,1", help="alternations per target, comma separated")
     p.add_argument("--budget", type=int, default=StructureSettings().budget)
     p.add_argument("--only", default=None, help="one target by name")
     a = p.parse_args(argv)
@@ -107,26 +108,28 @@ def main(argv: list[str] | None = None) -> None:
         old.mkdir()
         tar = subprocess.run(["git", "archive", a.base, "ipm"], cwd=ROOT, capture_output=True, check=True).stdout
         subprocess.run(["tar", "-x", "-C", str(old)], input=tar, check=True)
-        codes = {f"{a.base}: 32² rays": old, "this tree: 32², 64² at outlines": ROOT}
-        for name, rel, up in TARGETS:
-            if a.only and a.only != name:
+        codes = {f"{a.base}: 32² rays": old, f"{common.commit()}: 32², 64² at outlines": ROOT}
+        for (name, rel, up), repeat in zip(TARGETS, map(int, a.repeat.split(","))):
+            if (a.only and a.only != name) or not repeat:
                 continue
             target_masks(rel, up, Path(tmp) / name)
             runs: dict[str, list[dict]] = {c: [] for c in codes}
-            for _ in range(a.repeat):
+            for _ in range(repeat):
                 for label, code in codes.items():
                     r = run(code, Path(tmp) / name, rel, up, a.budget)
+                    r["load"] = os.getloadavg()[0]
                     runs[label].append(r)
                     print(name, label, r, f"load {os.getloadavg()[0]:.2f}", file=sys.stderr, flush=True)
             for label, rs in runs.items():
                 secs = [r["seconds"] for r in rs]
                 rows.append({"target": name, "code": label, **{k: rs[0][k] for k in ("heldout_iou", "fit_iou", "nodes",
                              "evaluations")}, "seconds (median)": round(statistics.median(secs), 1),
-                             "seconds (each)": " ".join(f"{s:.1f}" for s in secs)})
+                             "seconds (each)": " ".join(f"{s:.1f}" for s in secs),
+                             "load": " ".join(f"{r['load']:.1f}" for r in rs)})
     notes = (f"K = {VIEWS} protocol input views at {SIZE} px (exact rasterizer, mesh in the unit sphere); held-out "
              f"IoU over the 16 held-out views; budget {a.budget}, seed 0, one torch thread; the two codes alternated "
-             f"{a.repeat} times, one process a search; seconds: the search's wall time. Load average (1 min) at "
-             f"the start {load0[0]:.2f}.")
+             f"({a.repeat} times per target), one process a search; seconds: the search wall time; load: the 1-minute "
+             f"load average after each search (at the start {load0[0]:.2f}).")
     common.write_results(Path(a.out), "structure_masks", "Structure search from masks: 32² rays against fine rays at "
                          "the outlines", rows, notes)
 

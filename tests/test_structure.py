@@ -113,8 +113,8 @@ def test_fine_rays_hold_every_outline_pixel_and_tile_the_image(two_parts):
 
     cams, masks = two_parts
     for m, cam in zip(torch.as_tensor(masks), cams):
-        origin, dirs, hit, weight = _view_rays(m, cam, 16, 32)
-        assert float(weight.sum()) == 32 * 32 and len(dirs) < 0.6 * 32 * 32
+        origin, dirs, hit, area = _view_rays(m, cam, 16, 32)
+        assert float(area.sum()) == 32 * 32 and len(dirs) < 0.6 * 32 * 32
         fine = torch.nn.functional.interpolate(m[None, None].double(), size=(32, 32), mode="area")[0, 0] > 0.5
         pad = torch.nn.functional.pad(fine[None].double(), (1, 1, 1, 1), mode="replicate")[0]
         edge = torch.zeros_like(fine)   # a 4-neighbour differs: the outline at the fine resolution
@@ -124,7 +124,7 @@ def test_fine_rays_hold_every_outline_pixel_and_tile_the_image(two_parts):
         _, want = pixel_rays(crop_camera(cam.to(torch.float64), 0, 0, 128, 128, 32 / 128))
         for d, h in zip(want[edge], fine[edge]):
             i = int(torch.argmin((dirs - d).norm(dim=1)))
-            assert float((dirs[i] - d).norm()) < 1e-12 and bool(hit[i]) == bool(h) and float(weight[i]) == 1.0
+            assert float((dirs[i] - d).norm()) < 1e-12 and bool(hit[i]) == bool(h) and float(area[i]) == 1.0
 
 
 def test_fine_ray_silhouettes_match_the_rasterizer_within_a_pixel(two_parts):
@@ -137,7 +137,6 @@ def test_fine_ray_silhouettes_match_the_rasterizer_within_a_pixel(two_parts):
     wrong = (sil < 0) != s.ray_hit
     # a ray whose pixel the exact rasterizer decides otherwise passes within a pixel's footprint of the solid
     assert float(sil[wrong].abs().amax()) < pixel and 0 < int(wrong.sum()) < 0.03 * len(sil)
-    assert (s.ray_weight == 1).sum() > (s.ray_weight == 4).sum() / 4
     # a tree of the box alone misses the cylinder's rays: they pass through the cylinder, never the box's middle
     along = C.missed_cells(TWO_PARTS["children"][0], s)
     at = [int(torch.argmin((s.grid - torch.tensor(c, dtype=s.grid.dtype)).norm(dim=1))) for c in
@@ -282,7 +281,8 @@ def test_cli_search_from_masks(tmp_path):
              "--budget", "700", "--json")
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
-    assert out["fit_iou_of"] == "silhouettes at the mask rays" and out["fit_iou"] > 0.7 and out["evaluations"] <= 700
+    # the IoU over rays counts the fine rays at the outlines once each: lower than over 32² rays alone
+    assert out["fit_iou_of"] == "silhouettes at the mask rays" and out["fit_iou"] > 0.6 and out["evaluations"] <= 700
 
 
 @pytest.mark.parametrize("args, msg", [

@@ -8,9 +8,8 @@ of the target it misses or covers too much (where the edits put new parts).
   Masks: the same cross-entropy between the tree's silhouette at each ray (the minimum of its distance
   along the ray) and the ray's pixel, every ray counted once (:func:`ray_loss`).
 - **Score**: ``1 - IoU`` of the tree's occupancy with the target's on the sample grid (masks: of its
-  silhouettes with the masks, over every ray weighted by the area it stands for: the IoU at the fine
-  rays' resolution), plus the description length ``node_cost`` per node: a node must buy ``node_cost`` of
-  IoU to stay.
+  silhouettes with the masks, over every ray, each counted once as in the fit), plus the description length
+  ``node_cost`` per node: a node must buy ``node_cost`` of IoU to stay.
 - **Residual**: grid cells inside the target and outside the tree (missing; masks: only on the rays the
   tree misses, :func:`missed_cells`) and the reverse (extra), split into connected regions, largest first,
   each with its bounding box.
@@ -226,9 +225,8 @@ def score(d: dict, samples: Samples, node_cost: float) -> tuple[float, float, to
     if samples.rays is not None:
         with torch.no_grad():
             seen = silhouettes(compile_tree(d), None, samples) < 0
-        w, hit = samples.ray_weight, samples.ray_hit
-        union = float(w[seen | hit].sum())
-        q = float(w[seen & hit].sum()) / union if union else 1.0
+        union = int((seen | samples.ray_hit).sum())
+        q = float(int((seen & samples.ray_hit).sum()) / union) if union else 1.0
     else:
         q = iou(occ, samples)
     return (1.0 - q) + node_cost * count_nodes(d), q, occ

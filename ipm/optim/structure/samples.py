@@ -10,9 +10,10 @@ Masks of K >= 2 views give **silhouette rays** instead: through the pixel centre
 :data:`RAYS` pixels a side (area average > 1/2 is object), and where the mask's outline passes, through the
 pixel centres at :data:`FINE_RAYS` a side: a coarse pixel with a fine pixel whose mask flips within
 :data:`BAND` fine pixels is replaced by its fine pixels (a chair's tubes are a coarse pixel or two thick;
-inside and far outside the silhouette every fine pixel agrees with its coarse one). Each ray carries the
-area it stands for, in fine pixels, as its weight, so that the rays tile the image once and a weighted IoU
-is the IoU at the fine resolution. :data:`RAY_SAMPLES` points lie evenly along each ray's stretch inside
+inside and far outside the silhouette every fine pixel agrees with its coarse one). The rays tile each
+image once; the fit and the score count every ray once, so an outline weighs more than its area (measured
+better on real furniture: ``results/structure_masks.md``). :data:`RAY_SAMPLES` points lie evenly along each
+ray's stretch inside
 the bounds; a tree's silhouette at a ray is the minimum of its distance over those points (< 0: the ray
 meets the solid). The fit and the score compare silhouettes, not volumes, so a tree is not asked to fill
 what the views cannot see. The grid's labels there are the visual hull (a point is inside
@@ -44,8 +45,7 @@ class Samples:
     """Target points (float tensors on one device) and labels. ``surface`` (S, 3) or None (masks);
     ``volume`` (V, 3) with ``inside`` (V,) bool; ``grid`` (n³, 3) cell centres of a ``shape`` grid over
     ``lo``..``hi`` with ``grid_inside`` (n³,) bool; masks: ``rays`` (R, P, 3) points along R silhouette rays
-    with ``ray_hit`` (R,) bool, the ray's pixel is object, and ``ray_weight`` (R,) the area each ray stands
-    for (fine pixels)."""
+    with ``ray_hit`` (R,) bool, the ray's pixel is object."""
 
     surface: torch.Tensor | None
     volume: torch.Tensor
@@ -57,7 +57,6 @@ class Samples:
     hi: np.ndarray
     rays: torch.Tensor | None = None
     ray_hit: torch.Tensor | None = None
-    ray_weight: torch.Tensor | None = None
 
     @property
     def cell(self) -> np.ndarray:
@@ -71,7 +70,7 @@ class Samples:
 
         return Samples(f(self.surface), f(self.volume), self.inside.to(device), f(self.grid),
                        self.grid_inside.to(device), self.shape, self.lo, self.hi, f(self.rays),
-                       None if self.ray_hit is None else self.ray_hit.to(device), f(self.ray_weight))
+                       None if self.ray_hit is None else self.ray_hit.to(device))
 
 
 def _grid(lo: np.ndarray, hi: np.ndarray, n: int) -> tuple[np.ndarray, tuple[int, int, int]]:
@@ -140,11 +139,11 @@ def _split(cover: torch.Tensor, factor: int, band: int) -> torch.Tensor:
     return pool(edge.double(), factor, factor)[0, 0] > 0
 
 
-def _view_rays(m: torch.Tensor, cam: Camera, size: int, fine: int) -> tuple[torch.Tensor, torch.Tensor,
-                                                                              torch.Tensor, torch.Tensor]:
-    """One view's rays: ``(origin (3,), directions (R, 3), hit (R,) bool, weight (R,))``, the coarse pixels at
+def _view_rays(m: torch.Tensor, cam: Camera, size: int,
+               fine: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """One view's rays: ``(origin (3,), directions (R, 3), hit (R,) bool, area (R,))``, the coarse pixels at
     ``size`` a side where the mask is flat and the fine pixels at ``fine`` a side (a multiple of ``size``; 0:
-    none) near its outline, row by row."""
+    none) near its outline; ``area``: the fine pixels a ray stands for."""
     from ipm.render.camera import crop_camera, pixel_rays
 
     f64 = torch.float64
@@ -152,44 +151,42 @@ def _view_rays(m: torch.Tensor, cam: Camera, size: int, fine: int) -> tuple[torc
     small = crop_camera(cam.to(f64), 0, 0, W, H, size / max(H, W))
     origin, dirs = pixel_rays(small)
     h, w = dirs.shape[:2]
-    area = torch.nn.functional.interpolate
-    cover = area(m[None, None].to(f64), size=(h, w), mode="area")[0, 0] > 0.5
+    resize = torch.nn.functional.interpolate
+    cover = resize(m[None, None].to(f64), size=(h, w), mode="area")[0, 0] > 0.5
     if not fine:
         return origin, dirs.reshape(-1, 3), cover.reshape(-1), torch.ones(h * w, dtype=f64)
     k = fine // size
     _, fdirs = pixel_rays(crop_camera(small, 0, 0, w, h, k))
-    fcover = area(m[None, None].to(f64), size=(k * h, k * w), mode="area")[0, 0] > 0.5
+    fcover = resize(m[None, None].to(f64), size=(k * h, k * w), mode="area")[0, 0] > 0.5
     split = _split(fcover, k, BAND)
     fsplit = split.repeat_interleave(k, 0).repeat_interleave(k, 1)
     d = torch.cat([dirs[~split], fdirs[fsplit]])
     hit = torch.cat([cover[~split], fcover[fsplit]])
-    weight = torch.cat([torch.full((int((~split).sum()),), float(k * k), dtype=f64),
-                        torch.ones(int(fsplit.sum()), dtype=f64)])
-    return origin, d, hit, weight
+    area = torch.cat([torch.full((int((~split).sum()),), float(k * k), dtype=f64),
+                      torch.ones(int(fsplit.sum()), dtype=f64)])
+    return origin, d, hit, area
 
 
 def silhouette_rays(masks: torch.Tensor, cameras: Sequence[Camera], lo: np.ndarray, hi: np.ndarray, *,
                     size: int = RAYS, fine: int = FINE_RAYS,
-                    samples: int = RAY_SAMPLES) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                    samples: int = RAY_SAMPLES) -> tuple[torch.Tensor, torch.Tensor]:
     """Points ``(R, samples, 3)`` along every view's rays (coarse pixels at ``size`` a side, fine ones at
-    ``fine`` a side near the outline, 0: none) that cross the box ``lo``..``hi``, whether each ray's pixel
-    is object ``(R,)`` bool and its weight ``(R,)``, the area it stands for in fine pixels (module
-    docstring). A ray that misses the box cannot meet the tree; one whose pixel is object there is a mask
-    the box does not explain."""
+    ``fine`` a side near the outline, 0: none) that cross the box ``lo``..``hi`` and whether each ray's
+    pixel is object ``(R,)`` bool (module docstring). A ray that misses the box cannot meet the tree; one whose
+    pixel is object there is a mask the box does not explain."""
     from ipm.render.sdf_silhouette import ray_box
 
     f64 = torch.float64
     lo_t, hi_t = torch.as_tensor(lo, dtype=f64), torch.as_tensor(hi, dtype=f64)
     u = (torch.arange(samples, dtype=f64) + 0.5) / samples
-    pts, hits, weights = [], [], []
+    pts, hits = [], []
     for m, cam in zip(masks, cameras):
-        origin, dirs, hit, weight = _view_rays(m, cam, size, fine)
+        origin, dirs, hit, _ = _view_rays(m, cam, size, fine)
         t0, t1, ok = ray_box(origin, dirs, lo_t, hi_t)
         t = t0[ok, None] + (t1 - t0)[ok, None] * u
         pts.append(origin + t[..., None] * dirs[ok, None, :])
         hits.append(hit[ok])
-        weights.append(weight[ok])
-    return torch.cat(pts), torch.cat(hits), torch.cat(weights)
+    return torch.cat(pts), torch.cat(hits)
 
 
 def mask_samples(masks, cameras: Sequence[Camera], *, volume: int = 8000, grid: int = 32, extent: float = 1.2,
@@ -228,9 +225,8 @@ def mask_samples(masks, cameras: Sequence[Camera], *, volume: int = 8000, grid: 
     pts, shape = _grid(lo, hi, grid)
     f64 = torch.float64
     vol_t, pts_t = torch.as_tensor(vol, dtype=f64), torch.as_tensor(pts, dtype=f64)
-    pts_r, hit, weight = silhouette_rays(m, cameras, lo, hi, size=rays, fine=fine_rays)
-    return Samples(None, vol_t, carve(vol_t, m, cameras), pts_t, carve(pts_t, m, cameras), shape, lo, hi, pts_r, hit,
-                   weight)
+    pts_r, hit = silhouette_rays(m, cameras, lo, hi, size=rays, fine=fine_rays)
+    return Samples(None, vol_t, carve(vol_t, m, cameras), pts_t, carve(pts_t, m, cameras), shape, lo, hi, pts_r, hit)
 
 
 __all__ = ["Samples", "carve", "mask_samples", "mesh_samples", "silhouette_rays"]
