@@ -90,6 +90,9 @@ bench-profile: $(STAMP) ## real vessels' side views: 2D profiles fitted and revo
 table-gear: $(STAMP) ## the plug-in tutorial's benchmark (docs/plugins.md): random gears from 2 views, results/gear/ (about 4 minutes)
 	$(BIN)/ipm --plugin docs/examples/gear.py bench docs/examples/gear.toml -o results/gear --workers $(WORKERS)
 
+bench-structure-masks: $(STAMP) ## structure search from 4 masks: 84ed15d's 32² rays against this tree's, alternating, results/structure_masks.md (about 40 minutes)
+	IPM_THREADS=1 $(BIN)/python -m benchmarks.structure_masks results
+
 table-structure: $(STAMP) ## structure search from meshes: random trees and real furniture against fixed trees, BSP and an SDF grid, results/table_structure/ (about 30 minutes)
 	$(BIN)/python -m benchmarks.table_structure results/table_structure
 
@@ -114,7 +117,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

@@ -437,7 +437,7 @@ def _structure_samples(target_mesh: str | None, up: str, masks: str | None, cfg)
 
     target, _ = load_target(TargetFiles(masks=str(masks)))
     return mask_samples(target.masks.cpu().numpy(), target.cameras, volume=cfg.volume, grid=cfg.grid,
-                        seed=cfg.seed), None
+                        seed=cfg.seed, rays=cfg.rays, fine_rays=cfg.fine_rays), None
 
 
 def _structure_result(res, placed: dict, out: dict, run_dir: Path | None) -> FitResult:

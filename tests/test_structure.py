@@ -77,6 +77,80 @@ def test_mask_samples_carve_the_visual_hull():
         mask_samples(np.zeros_like(masks), cams)
 
 
+TWO_PARTS = {"node": "union", "children": [
+    {"node": "translate", "params": {"x": 0.0, "y": -0.1, "z": 0.0},
+     "children": [{"node": "box", "params": {"size_x": 1.0, "size_y": 0.3, "size_z": 0.6}}]},
+    {"node": "translate", "params": {"x": 0.25, "y": 0.3, "z": 0.0},
+     "children": [{"node": "cylinder", "params": {"radius": 0.12, "height": 0.6}}]}]}
+
+
+BOX_SPHERE = {"node": "union", "children": [
+    TWO_PARTS["children"][0],
+    {"node": "translate", "params": {"x": 0.25, "y": 0.3, "z": 0.0},
+     "children": [{"node": "sphere", "params": {"radius": 0.25}}]}]}
+
+
+def exact_masks(tree: dict, views: int):
+    """Views ``input_views(views, 128)`` and the exact rasterizer's masks of ``tree``'s exact mesh in them."""
+    from ipm.bench.protocol import render_masks
+    from ipm.render.camera import input_views
+    from ipm.sdf.exact import exact_mesh
+    from ipm.sdf.tree import tree_from_json
+
+    cams = input_views(views, 128)
+    return cams, render_masks(exact_mesh(tree_from_json({"tree": tree}), segments=96).mesh, cams)
+
+
+@pytest.fixture(scope="module")
+def two_parts():
+    """:data:`TWO_PARTS` in two views (:func:`exact_masks`)."""
+    return exact_masks(TWO_PARTS, 2)
+
+
+def test_fine_rays_hold_every_outline_pixel_and_tile_the_image(two_parts):
+    from ipm.optim.structure.samples import _view_rays
+    from ipm.render.camera import crop_camera, pixel_rays
+
+    cams, masks = two_parts
+    for m, cam in zip(torch.as_tensor(masks), cams):
+        origin, dirs, hit, area = _view_rays(m, cam, 16, 32)
+        assert float(area.sum()) == 32 * 32 and len(dirs) < 0.6 * 32 * 32
+        fine = torch.nn.functional.interpolate(m[None, None].double(), size=(32, 32), mode="area")[0, 0] > 0.5
+        pad = torch.nn.functional.pad(fine[None].double(), (1, 1, 1, 1), mode="replicate")[0]
+        edge = torch.zeros_like(fine)   # a 4-neighbour differs: the outline at the fine resolution
+        for dy, dx in ((0, 1), (2, 1), (1, 0), (1, 2)):
+            edge |= pad[dy:dy + 32, dx:dx + 32].bool() != fine
+        assert edge.sum() > 20
+        _, want = pixel_rays(crop_camera(cam.to(torch.float64), 0, 0, 128, 128, 32 / 128))
+        for d, h in zip(want[edge], fine[edge]):
+            i = int(torch.argmin((dirs - d).norm(dim=1)))
+            assert float((dirs[i] - d).norm()) < 1e-12 and bool(hit[i]) == bool(h) and float(area[i]) == 1.0
+
+
+def test_fine_ray_silhouettes_match_the_rasterizer_within_a_pixel(two_parts):
+    from ipm.sdf.tree import tree_from_json
+
+    cams, masks = two_parts
+    s = mask_samples(masks, cams, volume=500, grid=16, rays=16, fine_rays=32)
+    sil = C.silhouettes(tree_from_json({"tree": TWO_PARTS}), None, s)
+    pixel = 2 * float(cams[0].eye.norm()) * np.tan(np.radians(float(cams[0].fov_deg)) / 2) / 32
+    wrong = (sil < 0) != s.ray_hit
+    # a ray whose pixel the exact rasterizer decides otherwise passes within a pixel's footprint of the solid
+    assert float(sil[wrong].abs().amax()) < pixel and 0 < int(wrong.sum()) < 0.03 * len(sil)
+    # a tree of the box alone misses the cylinder's rays: they pass through the cylinder, never the box's middle
+    along = C.missed_cells(TWO_PARTS["children"][0], s)
+    at = [int(torch.argmin((s.grid - torch.tensor(c, dtype=s.grid.dtype)).norm(dim=1))) for c in
+          ((0.25, 0.35, 0.0), (0.0, -0.1, 0.0))]
+    assert bool(along[at[0]]) and not bool(along[at[1]])
+
+
+def test_search_from_masks_recovers_a_two_part_tree():
+    cams, masks = exact_masks(BOX_SPHERE, 2)
+    samples = mask_samples(masks, cams, volume=2000, grid=24, rays=16, fine_rays=32).to(dtype=torch.float32)
+    r = search(samples, StructureSettings(budget=1200, polish=100, steps=20, grid=24, proposals=6, rounds=3))
+    assert r.signature == signature(BOX_SPHERE) and r.iou > 0.95
+
+
 def test_core_box_is_inside_and_grows_over_a_slab():
     region = np.zeros((10, 10, 10), bool)
     region[1:9, 2:4, 1:9] = True      # a seat
@@ -147,6 +221,8 @@ def test_search_is_deterministic_and_resumes_where_it_left_off(samples):
     ({"kinds": ("box", "cone")}, "structure kinds: expected some of box, cylinder, sphere"),
     ({"edits": ("add", "explode")}, "structure edits: expected some of"),
     ({"budget": 100, "polish": 100}, "structure polish: expected fewer steps than the budget"),
+    ({"rays": 32, "fine_rays": 48}, "structure fine rays: expected 0 or a multiple of rays \\(32\\), got 48"),
+    ({"rays": 2}, "structure rays: expected an integer in \\[4, 512\\], got 2"),
 ])
 def test_bad_settings_are_one_line(kw, msg):
     with pytest.raises(InputError, match=msg):
@@ -205,7 +281,8 @@ def test_cli_search_from_masks(tmp_path):
              "--budget", "700", "--json")
     assert p.returncode == 0, p.stderr
     out = json.loads(p.stdout)
-    assert out["fit_iou_of"] == "silhouettes at the mask rays" and out["fit_iou"] > 0.7 and out["evaluations"] <= 700
+    # the IoU over rays counts the fine rays at the outlines once each: lower than over 32² rays alone
+    assert out["fit_iou_of"] == "silhouettes at the mask rays" and out["fit_iou"] > 0.6 and out["evaluations"] <= 700
 
 
 @pytest.mark.parametrize("args, msg", [

@@ -249,7 +249,8 @@ def _proposals(run: _Run, tree: dict, seen: set[str], min_cells: int, rnd: int) 
     """Round ``rnd``'s proposals for ``tree``: each edit's proposals within ``max_nodes`` and not in
     ``seen`` (which they join), interleaved up to ``proposals``."""
     s, samples = run.s, run.samples
-    missing, extra = C.residual(C.occupancy(tree, samples), samples)
+    along = None if samples.rays is None else C.missed_cells(tree, samples)
+    missing, extra = C.residual(C.occupancy(tree, samples), samples, along)
     ctx = Context(samples, tuple(C.regions(missing, samples, min_cells, s.regions)),
                   tuple(C.regions(extra, samples, min_cells, s.regions)), s.kinds)
     lists = []

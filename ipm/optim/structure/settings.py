@@ -9,6 +9,7 @@ from msgspec import Meta
 
 from ipm.errors import InputError
 from ipm.optim.structure.program import PRIMITIVES
+from ipm.optim.structure.samples import FINE_RAYS, RAYS
 from ipm.settings_check import allowed, error_path, field_types, first_infinite
 
 DEFAULT_EDITS = ("add", "replace", "delete", "merge", "mirror", "turn", "smooth")
@@ -37,10 +38,12 @@ class StructureSettings:
     surface: Annotated[int, Meta(ge=1, le=10_000_000)] = 2000  # target surface points (mesh targets)
     volume: Annotated[int, Meta(ge=16, le=10_000_000)] = 6000  # target volume points
     grid: Annotated[int, Meta(ge=8, le=256)] = 48             # scoring grid, cells along the longest side
+    rays: Annotated[int, Meta(ge=4, le=512)] = RAYS           # silhouette rays a side of each view (masks)
+    fine_rays: Annotated[int, Meta(ge=0, le=2048)] = FINE_RAYS  # ... near the outlines (a multiple; 0: none)
 
     def check(self) -> None:
         """Raise :class:`~ipm.errors.InputError` with one line for a field of the wrong type or range, an
-        unknown primitive kind or edit."""
+        unknown primitive kind or edit, fine rays that do not divide into rays."""
         import msgspec
 
         from ipm.optim.structure.edits import EDITS
@@ -59,6 +62,9 @@ class StructureSettings:
         known = EDITS.names()
         if not self.edits or any(e not in known for e in self.edits):
             raise InputError(f"structure edits: expected some of {', '.join(known)}, got {list(self.edits)}")
+        if self.fine_rays % self.rays:
+            raise InputError(f"structure fine rays: expected 0 or a multiple of rays ({self.rays}), got "
+                             f"{self.fine_rays}")
         if self.polish >= self.budget:
             raise InputError(f"structure polish: expected fewer steps than the budget ({self.budget}), got "
                              f"{self.polish}")
