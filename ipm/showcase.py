@@ -267,7 +267,9 @@ def structure_showcase(out: Path) -> dict:
 def editable_exports(out: Path) -> dict:
     """Issue #31: the armchair's searched tree (:func:`structure_showcase`'s run folder) leaves ipm as an exact CSG
     mesh (manifold3d: sharp edges; nodes without an exact form named), a USD stage carrying its parameters, and
-    OpenSCAD and CadQuery programs where every node maps (else the one line that says which node does not)."""
+    OpenSCAD and CadQuery programs where every node maps (else which node does not: the search's ``smooth`` edit
+    makes blends that no CAD program expresses exactly; ``ipm fit --structure search --edits`` without it gives a
+    tree of hard booleans)."""
     from ipm.errors import InputError
     from ipm.io.export import export_mesh
     from ipm.io.programs import export_program
@@ -285,8 +287,8 @@ def editable_exports(out: Path) -> dict:
         try:
             export_program(gen.sdf_tree(values), folder / f"armchair{suffix}", gen.metadata(values))
             row["programs"][suffix] = f"armchair{suffix}"
-        except InputError as e:
-            row["programs"][suffix] = f"refused: {e}"
+        except InputError as e:  # the line's first clause names the node; the rest lists the nodes that map
+            row["programs"][suffix] = f"refused: {str(e).split(';')[0]}"
     return row
 
 

@@ -67,6 +67,9 @@ def register(app: typer.Typer) -> None:
         print(f"  exact mesh: {ex['vertices']} vertices, watertight={ex['watertight']}{fallback}")
         for suffix, what in ex["programs"].items():
             print(f"  {suffix:5s} {what}")
+        if any(w.startswith("refused") for w in ex["programs"].values()):
+            print("  (ipm fit --structure search --edits add,replace,delete,merge,mirror,turn searches hard booleans "
+                  "only, which every program takes)")
         print("learned proposals (#29): a real LoD2 house from one view, started from a preset and from the "
               "network's guesses ...", flush=True)
         for init, r in S.learned_start(out).items():
