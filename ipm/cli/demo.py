@@ -62,14 +62,7 @@ def register(app: typer.Typer) -> None:
         print(f"  {st['structure']}: {st['nodes']} nodes, held-out silhouette IoU {st['heldout_iou']:.3f}, "
               f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
         print("editable exports (#31): the armchair's tree as an exact CSG mesh, USD and CAD programs ...", flush=True)
-        ex = S.editable_exports(out)
-        fallback = f"; marching cubes for {', '.join(ex['fallback'])} (no exact form)" if ex["fallback"] else ""
-        print(f"  exact mesh: {ex['vertices']} vertices, watertight={ex['watertight']}{fallback}")
-        for suffix, what in ex["programs"].items():
-            print(f"  {suffix:5s} {what}")
-        if any(w.startswith("refused") for w in ex["programs"].values()):
-            print("  (ipm fit --structure search --edits add,replace,delete,merge,mirror,turn searches hard booleans "
-                  "only, which every program takes)")
+        _print_exports(S.editable_exports(out))
         print("learned proposals (#29): a real LoD2 house from one view, started from a preset and from the "
               "network's guesses ...", flush=True)
         for init, r in S.learned_start(out).items():
@@ -92,3 +85,14 @@ def register(app: typer.Typer) -> None:
               "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
               "structures.jsonl (every tree tried), result.json")
+
+
+def _print_exports(ex: dict) -> None:
+    """The editable-exports step's lines: the exact mesh, then each program or why it was refused."""
+    fallback = f"; marching cubes for {', '.join(ex['fallback'])} (no exact form)" if ex["fallback"] else ""
+    print(f"  exact mesh: {ex['vertices']} vertices, watertight={ex['watertight']}{fallback}")
+    for suffix, what in ex["programs"].items():
+        print(f"  {suffix:5s} {what}")
+    if any(w.startswith("refused") for w in ex["programs"].values()):
+        print("  (ipm fit --structure search --edits add,replace,delete,merge,mirror,turn searches hard booleans "
+              "only, which every program takes)")

@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ipm.io.programs import PROGRAMS, ProgramFormat
-from ipm.io.programs.lower import Part, Program, bare, identifier, number, walk
+from ipm.io.programs.lower import Part, Program, bare, identifier, number, registrar, walk
 
 # node type -> fn(part, children's names) -> the expression of the node's shape
 NODES: dict[str, Callable[[Part, list[str]], str]] = {}
@@ -151,14 +151,8 @@ _NEEDS = {"axis": ("vec",), "ball": ("vec",), "upright": ("vec",),
           "revolution": ("polygon", "vec")}
 
 
-def node(*kinds: str, uses: tuple[str, ...] = ()):
-    """Register the writer of these node types' expressions (calling the helper functions ``uses``)."""
-    def deco(fn):
-        for k in kinds:
-            NODES[k] = fn
-            USES[k] = uses
-        return fn
-    return deco
+# registers the writer of these node types' expressions (calling the helper functions ``uses``)
+node = registrar(NODES, USES)
 
 
 for _kind, _text, _uses in (

@@ -203,6 +203,21 @@ def expression(e, env: Mapping[str, Val]) -> Val:
     return Val("(" + _OPS[op].join(parts) + ")", value)
 
 
+def registrar(nodes: dict, uses_of: dict):
+    """A language's decorator ``node(*kinds, uses=())``: records the decorated writer of these node types in
+    ``nodes`` and the helpers it calls in ``uses_of`` (so that a program includes only the helpers it uses)."""
+
+    def node(*kinds: str, uses: tuple[str, ...] = ()):
+        def deco(fn):
+            for k in kinds:
+                nodes[k] = fn
+                uses_of[k] = uses
+            return fn
+        return deco
+
+    return node
+
+
 def walk(part: Part):
     """Every part of the program, in pre-order."""
     stack = [part]

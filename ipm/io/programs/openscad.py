@@ -12,7 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ipm.io.programs import PROGRAMS, ProgramFormat
-from ipm.io.programs.lower import Part, Program, bare, number, walk
+from ipm.io.programs.lower import Part, Program, bare, number, registrar, walk
 
 # node type -> fn(part, children's lines) -> the node's lines
 NODES: dict[str, Callable[[Part, list[list[str]]], list[str]]] = {}
@@ -98,14 +98,8 @@ _NEEDS = {"mirror_half": ("half_space",), "revolve": ("along_y",), "torus": ("al
           "hex_prism": ("along_y",), "revolution": ("along_y",)}
 
 
-def node(*kinds: str, uses: tuple[str, ...] = ()):
-    """Register the writer of these node types' statements (calling the helper modules ``uses``)."""
-    def deco(fn):
-        for k in kinds:
-            NODES[k] = fn
-            USES[k] = uses
-        return fn
-    return deco
+# registers the writer of these node types' statements (calling the helper modules ``uses``)
+node = registrar(NODES, USES)
 
 
 def vec(*vals) -> str:
