@@ -28,22 +28,11 @@ GRID_TREES = 120
 
 
 def grid_tree(n: int, seed: int) -> dict:
-    """A random tree of ``n`` parts like :func:`benchmarks.table_structure.random_tree`, its full sizes rounded
-    to multiples of 0.1 and its centers to multiples of 0.05, so that faces meet and surfaces are tangent."""
-    from ipm.optim.structure.program import combine, part
+    """A random tree of ``n`` parts (:func:`benchmarks.table_structure.random_tree`), its full sizes rounded to
+    multiples of 0.1 and its centers to multiples of 0.05, so that faces meet and surfaces are tangent."""
+    from benchmarks.table_structure import random_tree
 
-    rng = np.random.default_rng([77, n, seed])
-    tree = None
-    for i in range(n):
-        kind = ("box", "cylinder", "sphere")[int(rng.integers(3))]
-        ext = np.round(rng.uniform(0.25, 0.9, 3) / 0.1) * 0.1
-        center = np.round(rng.uniform(-0.35, 0.35, 3) / 0.05) * 0.05
-        if tree is None:
-            tree = part(f"part{i + 1}", kind, center, ext)
-        else:
-            op = "union" if rng.random() < 0.7 else "subtraction"
-            tree = combine(op, tree, part(f"{'part' if op == 'union' else 'cut'}{i + 1}", kind, center, ext))
-    return tree
+    return random_tree(n, np.random.default_rng([77, n, seed]), snap=(0.1, 0.05))
 
 
 def groups() -> dict[str, list[tuple[str, object]]]:

@@ -42,8 +42,10 @@ PRESETS = ("chair", "table")   # preset trees sampled with every size scaled by 
 BSP_SIZES = ((1, 8), (2, 6), (2, 8), (3, 6))  # (convexes, planes) tried for the BSP tree
 
 
-def random_tree(n: int, rng: np.random.Generator) -> dict:
-    """A random tree of ``n`` parts: the first adds, later ones add (70 %) or cut."""
+def random_tree(n: int, rng: np.random.Generator, snap: tuple[float, float] | None = None) -> dict:
+    """A random tree of ``n`` parts: the first adds, later ones add (70 %) or cut. ``snap``: full sizes and
+    centers rounded to multiples of these two steps (the same draws), so that faces meet and surfaces are
+    tangent as in designed models."""
     from ipm.optim.structure.program import combine, part
 
     tree = None
@@ -51,6 +53,8 @@ def random_tree(n: int, rng: np.random.Generator) -> dict:
         kind = KINDS[int(rng.integers(3))]
         ext = rng.uniform(0.25, 0.9, 3)
         center = rng.uniform(-0.35, 0.35, 3)
+        if snap is not None:
+            ext, center = np.round(ext / snap[0]) * snap[0], np.round(center / snap[1]) * snap[1]
         if tree is None:
             tree = part(f"part{i + 1}", kind, center, ext)
         else:

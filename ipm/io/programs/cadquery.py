@@ -22,7 +22,7 @@ from __future__ import annotations
 from collections.abc import Callable
 
 from ipm.io.programs import PROGRAMS, ProgramFormat
-from ipm.io.programs.lower import Part, Program, bare, identifier, number, registrar, walk
+from ipm.io.programs.lower import Part, Program, bare, fresh, number, registrar, walk
 
 # node type -> fn(part, children's names) -> the expression of the node's shape
 NODES: dict[str, Callable[[Part, list[str]], str]] = {}
@@ -236,12 +236,7 @@ class _Names:
         self.taken = set(taken)
 
     def __call__(self, label: str) -> str:
-        base = identifier(label)
-        out, k = base, 2
-        while out in self.taken:
-            out, k = f"{base}_{k}", k + 1
-        self.taken.add(out)
-        return out
+        return fresh(label, self.taken)
 
 
 def statements(part: Part, names: _Names, out: list[str]) -> str:

@@ -121,12 +121,7 @@ class _Lowering:
 
     def name(self, text: str) -> str:
         """A fresh identifier from ``text`` (a suffix when taken)."""
-        base = identifier(text)
-        out, k = base, 2
-        while out in self.taken:
-            out, k = f"{base}_{k}", k + 1
-        self.taken.add(out)
-        return out
+        return fresh(text, self.taken)
 
     def declare(self, name: str, val: Val, comment: str = "") -> Val:
         """Declare a variable holding ``val``; the value that refers to it."""
@@ -201,6 +196,16 @@ def expression(e, env: Mapping[str, Val]) -> Val:
     if op in ("min", "max"):
         return Val(f"{op}({', '.join(parts)})", value)
     return Val("(" + _OPS[op].join(parts) + ")", value)
+
+
+def fresh(text: str, taken: set[str]) -> str:
+    """An identifier from ``text`` not in ``taken`` (``_2``, ``_3``, ... appended while it is), added to ``taken``."""
+    base = identifier(text)
+    out, k = base, 2
+    while out in taken:
+        out, k = f"{base}_{k}", k + 1
+    taken.add(out)
+    return out
 
 
 def registrar(nodes: dict, uses_of: dict):
