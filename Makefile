@@ -41,14 +41,17 @@ bench: $(STAMP) ## speed benchmarks, written under results/perf/
 WORKERS ?= 2
 define run_bench
 	$(if $(FRESH),rm -rf results/$(2),)
-	$(BIN)/ipm bench experiments/$(1).toml -o results/$(2) --workers $(WORKERS) --resume
+	$(BIN)/ipm bench experiments/$(1).toml -o results/$(2) --workers $(WORKERS) --resume $(3)
 endef
 
 bench-small: $(STAMP) ## the small experiment (1 real mug, seconds), results/small/
 	$(call run_bench,small,small)
 
-table1: $(STAMP) ## the Table-1 analogue: 17 real meshes, fits from 1, 2 and 4 views, results/table1/
-	$(call run_bench,table1,table1)
+table1: $(STAMP) ## the Table-1 analogue on its tune split: 22 real meshes, fits from 1, 2 and 4 views, results/table1/
+	$(call run_bench,table1,table1,--split tune)
+
+table-validation: $(STAMP) ## the same table on the validation split (24 real meshes never tuned on), results/table_validation/
+	$(call run_bench,table1,table_validation,--split validation)
 
 table-synthetic: $(STAMP) ## generator samples with known parameters, results/table_synthetic/
 	$(call run_bench,table_synthetic,table_synthetic)
@@ -117,7 +120,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

@@ -118,6 +118,7 @@ class TargetSpec:
     seed: int = 0
     params: dict = field(default_factory=dict)
     cls: str | None = None  # the "class" key: tables give means per class
+    split: str | None = None  # which part of the set (e.g. "tune", "validation"): `ipm bench --split` runs one
 
 
 @dataclass(frozen=True)
@@ -210,6 +211,7 @@ class _TargetFile(msgspec.Struct, forbid_unknown_fields=True, rename={"cls": "cl
     seed: Seed = 0
     params: dict[str, Any] = {}
     cls: Annotated[str, Meta(min_length=1)] | None = None
+    split: Annotated[str, Meta(min_length=1)] | None = None
 
 
 class _MethodKeys(msgspec.Struct, forbid_unknown_fields=True):
@@ -304,7 +306,7 @@ def _target_spec(path: Path, t: _TargetFile) -> TargetSpec:
     if t.generator is None and (t.preset is not None or t.random or t.params):
         raise InputError(f"{path}: target {t.name}: preset, random and params go with a generator target")
     return TargetSpec(name=t.name, mesh=t.mesh, up=t.up, generator=t.generator, preset=t.preset,
-                      random=t.random, seed=t.seed, params=dict(t.params), cls=t.cls)
+                      random=t.random, seed=t.seed, params=dict(t.params), cls=t.cls, split=t.split)
 
 
 def _method_spec(path: Path, i: int, m: dict, targets: list[TargetSpec]) -> MethodSpec:
@@ -350,8 +352,21 @@ def _method_spec(path: Path, i: int, m: dict, targets: list[TargetSpec]) -> Meth
     return spec
 
 
-def load_experiment(path: str | Path) -> Experiment:
+def _of_split(path: Path, targets: list[TargetSpec], split: str | None) -> list[TargetSpec]:
+    """The targets of ``split`` (all of them when it is None); :class:`InputError` when it names none."""
+    if split is None:
+        return targets
+    kept = [t for t in targets if t.split == split]
+    if not kept:
+        splits = sorted({t.split for t in targets if t.split is not None})
+        have = ", ".join(splits) or "it has none: give targets a split key"
+        raise InputError(f"--split {split}: expected a split of {path} ({have}), got one with no target")
+    return kept
+
+
+def load_experiment(path: str | Path, split: str | None = None) -> Experiment:
     """Parse and check an experiment file; :class:`~ipm.errors.InputError` names the file and the problem.
+    With ``split``, only the targets of that split (their ``split`` key) are kept.
 
     Everything a run needs is checked here, without running: the nesting (at most :data:`MAX_NESTING`
     deep, checked on the text before it is parsed), keys (unknown ones are refused), types and ranges
@@ -368,7 +383,7 @@ def load_experiment(path: str | Path) -> Experiment:
     if len(set(names)) != len(names):
         dup = sorted({n for n in names if names.count(n) > 1})
         raise InputError(f"{path}: target and method names must be unique; repeated: {', '.join(dup)}")
-    return Experiment(name=f.name or path.stem, root=root, targets=tuple(targets), methods=tuple(methods),
-                      views=tuple(f.views), seeds=tuple(f.seeds), budget=f.budget, size=f.size,
+    return Experiment(name=f.name or path.stem, root=root, targets=tuple(_of_split(path, targets, split)),
+                      methods=tuple(methods), views=tuple(f.views), seeds=tuple(f.seeds), budget=f.budget, size=f.size,
                       heldout_size=f.heldout_size, samples=f.samples, iou_resolution=f.iou_resolution,
                       distance=float(f.distance), notes=f.notes.strip())

@@ -305,6 +305,7 @@ def cell_identities(exp_path: str, exp: Experiment) -> dict[str, str]:
     targets = {}
     for t in exp.targets:
         d = asdict(t)
+        del d["split"]  # which run a target belongs to is not what its rows depend on
         if t.mesh is not None:
             path = Path(t.mesh) if Path(t.mesh).is_absolute() else exp.root / t.mesh
             try:
@@ -351,11 +352,12 @@ def check_same_experiment(out: Path, rows: list[dict], exp_path: str, exp: Exper
 
 
 def run_experiment(exp_path: str | Path, out_dir: str | Path, *, workers: int = 1, scheduler: str | None = None,
-                   resume: bool = False, dry_run: bool = False,
+                   resume: bool = False, dry_run: bool = False, split: str | None = None,
                    progress: Callable[[dict, int, int], None] | None = None) -> list[dict]:
-    """Run every cell not yet in ``out_dir/rows.jsonl``; return all rows (old and new)."""
+    """Run every cell (of the targets of ``split``, if given) not yet in ``out_dir/rows.jsonl``; return all rows
+    (old and new)."""
     exp_path = str(Path(exp_path).resolve())
-    exp: Experiment = load_experiment(exp_path)
+    exp: Experiment = load_experiment(exp_path, split)
     out = Path(out_dir)
     if not resume and not dry_run and (out / ROWS).is_file():
         n = sum(1 for line in (out / ROWS).read_bytes().split(b"\n") if line.strip())

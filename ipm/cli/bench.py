@@ -1,4 +1,4 @@
-"""``ipm bench EXPERIMENT.toml [-o DIR] [--workers N] [--scheduler ADDRESS] [--resume] [--dry-run]``."""
+"""``ipm bench EXPERIMENT.toml [-o DIR] [--split NAME] [--workers N] [--scheduler ADDRESS] [--resume] [--dry-run]``."""
 
 from __future__ import annotations
 
@@ -18,6 +18,8 @@ def register(app: typer.Typer) -> None:
         experiment: Annotated[Path, typer.Argument(help="experiment file (TOML)")],
         output: Annotated[Path | None, typer.Option("-o", "--output", help="results folder "
                                                     "(default results/<experiment name>)")] = None,
+        split: Annotated[str | None, typer.Option(help="run only the targets whose split key is this (for "
+                                                  "example tune or validation)")] = None,
         workers: Annotated[int, typer.Option(help="local worker processes")] = 1,
         scheduler: Annotated[str | None, typer.Option(help="Dask scheduler address (runs cells there)")] = None,
         resume: Annotated[bool, typer.Option(help=(
@@ -35,7 +37,7 @@ def register(app: typer.Typer) -> None:
 
         if workers < 1:
             raise UsageError(f"--workers: expected at least 1, got {workers}")
-        exp = load_experiment(experiment)
+        exp = load_experiment(experiment, split)
         out = output or Path("results") / exp.name
         from rich.console import Console
 
@@ -46,7 +48,7 @@ def register(app: typer.Typer) -> None:
                       f"held-out IoU {row.get('heldout_iou', float('nan')):.3f} in {row.get('wall_time_s', 0)} s")
 
         rows = run_experiment(experiment, out, workers=workers, scheduler=scheduler, resume=resume,
-                              dry_run=dry_run, progress=progress)
+                              dry_run=dry_run, split=split, progress=progress)
         if dry_run:
             emit({"todo": [r["key"] for r in rows]}, json_out)
             return
@@ -64,7 +66,8 @@ def register(app: typer.Typer) -> None:
         by_class = class_markdown(rows, classes)
         readme = "\n".join([
             f"# {exp.name}", "",
-            f"Command: `ipm bench {experiment}{' -o ' + str(output) if output else ''}`  ",
+            f"Command: `ipm bench {experiment}{' -o ' + str(output) if output else ''}"
+            f"{' --split ' + split if split else ''}`  ",
             f"Date: {dt.datetime.now(dt.UTC).isoformat(timespec='seconds')}  ",
             f"Machine: {platform.processor() or platform.machine()}, {__import__('os').cpu_count()} cores  ",
             f"Versions: ipm {ipm.__version__}, torch {torch.__version__}, Python {platform.python_version()}", "",
