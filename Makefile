@@ -53,6 +53,9 @@ table1: $(STAMP) ## the Table-1 analogue on its tune split: 22 real meshes, fits
 table-validation: $(STAMP) ## the same table on the validation split (24 real meshes never tuned on), results/table_validation/
 	$(call run_bench,table1,table_validation,--split validation)
 
+split-report: $(STAMP) ## tune against validation per class, and issue #34's checks, from the two tables' rows: results/split.md
+	$(BIN)/python -m benchmarks.split_report results
+
 table-synthetic: $(STAMP) ## generator samples with known parameters, results/table_synthetic/
 	$(call run_bench,table_synthetic,table_synthetic)
 
@@ -120,7 +123,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

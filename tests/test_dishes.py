@@ -70,12 +70,12 @@ def check_closed_solid_fast(v, f, what):
     assert areas.min() > 1e-12 * max(1.0, areas.max()), f"{what}: degenerate face, area {areas.min()}"
 
 
-def check_handle_touches_body(mesh, what, radial):
-    """Both handle end centers (the caps' pole vertices) lie in the body solid, or, where the wall is
-    thinner than the polygon's sag (then the wall's inside is ill-defined), on its surface."""
+def check_handle_touches_body(mesh, what, radial, name="handle"):
+    """Both handle end centers (the caps' pole vertices; the spout tube's root only) lie in the body solid, or,
+    where the wall is thinner than the polygon's sag (then the wall's inside is ill-defined), on its surface."""
     bv, bf = part(mesh, "body")
-    hv, _ = part(mesh, "handle")
-    ends = hv[[0, -1]]
+    hv, _ = part(mesh, name)
+    ends = hv[[0, -1]] if name == "handle" else hv[:1]
     inside = winding_number(bv, bf, ends) > 0.5
     if inside.all():
         return
@@ -90,6 +90,10 @@ def test_presets_are_closed_solids_with_a_touching_handle(preset):
     mesh = build(values, "medium")
     check_closed_solid(*part(mesh, "body"), f"{preset} body")
     assert ("handle" in mesh.group_names) == bool(values["has_handle"])
+    assert ("spout" in mesh.group_names) == bool(values["has_spout"])
+    if values["has_spout"]:
+        check_closed_solid(*part(mesh, "spout"), f"{preset} spout")
+        check_handle_touches_body(mesh, preset, LODS["medium"].radial, "spout")
     if values["has_handle"]:
         check_closed_solid(*part(mesh, "handle"), f"{preset} handle")
         check_handle_touches_body(mesh, preset, LODS["medium"].radial)
@@ -109,16 +113,21 @@ def test_random_parameters_always_give_closed_solids():
         if values["has_handle"]:
             check_closed_solid_fast(*part(mesh, "handle"), what)
             check_handle_touches_body(mesh, what, LOW.radial)
+        if values["has_spout"]:
+            check_closed_solid_fast(*part(mesh, "spout"), what)
+            check_handle_touches_body(mesh, what, LOW.radial, "spout")
 
 
 def test_counts_depend_only_on_discrete_values_and_lod():
     rng = np.random.default_rng(3)
     a, b = GEN.spec.random(rng), GEN.spec.random(rng)
-    for has_handle in (0, 1):
-        a["has_handle"] = b["has_handle"] = has_handle
+    for has_handle, has_spout in ((0, 0), (1, 0), (0, 1), (1, 1)):
+        d = {"has_handle": has_handle, "has_spout": has_spout}
+        a.update(d)
+        b.update(d)
         ma, mb = build(a), build(b)
         assert torch.equal(ma.faces, mb.faces) and torch.equal(ma.groups, mb.groups)
-        assert (ma.n_verts, ma.n_faces) == GEN.counts({"has_handle": has_handle}, LOW)
+        assert (ma.n_verts, ma.n_faces) == GEN.counts(d, LOW)
     assert build(a, "high").n_verts > build(a, "low").n_verts
 
 
@@ -229,7 +238,8 @@ def test_handle_parameters_move_only_the_handle():
 
 @pytest.mark.parametrize("preset, overrides", [("mug", {}), ("pitcher", {}), ("bowl", {}),
                                                ("mug", {"spout": 0.15, "handle_azimuth": 20.0}),
-                                               ("mug", {"has_handle": 0})])
+                                               ("mug", {"has_handle": 0}), ("teapot", {}),
+                                               ("teapot", {"has_handle": 0, "handle_azimuth": -40.0})])
 @pytest.mark.parametrize("dtype", [torch.float64, torch.float32])
 def test_structured_jacobian_equals_jacfwd_of_the_mesh(preset, overrides, dtype):
     theta, discrete = GEN.split(GEN.values(preset, overrides), dtype)
@@ -301,7 +311,7 @@ def test_a_round_section_revolves_the_profile_on_circles(preset):
     from ipm.generators.dishes import _handle, _Named, _profile
 
     theta, discrete = GEN.split(GEN.values(preset, ROUND))
-    st = GEN._stage(theta, discrete["has_handle"], LOW)
+    st = GEN._stage(theta, GEN._check(theta, discrete, LOW)[0], LOW)
     assert torch.allclose(st["rho"], torch.ones_like(st["rho"]), rtol=0, atol=1e-15)
     body = mk.revolve(st["r"], st["y"], LOW.radial, bottom=st["y_bottom"], top=st["y_top"],
                       bulge=(st["q"], st["w"]))
@@ -313,7 +323,7 @@ def test_a_round_section_revolves_the_profile_on_circles(preset):
         v["sections"] = v["sections"].reshape(2, -1).T
         prof = _profile(p, v["radii"], LOW, v["thicken"])
         handle = _handle(p, v, prof, torch.ones(LOW.radial, dtype=theta.dtype), LOW)
-        assert torch.allclose(mesh.verts[body.shape[0]:], handle, rtol=0, atol=1e-14)
+        assert torch.allclose(mesh.verts[body.shape[0]:body.shape[0] + handle.shape[0]], handle, rtol=0, atol=1e-14)
 
 
 @pytest.mark.parametrize("squareness, power", [(0.0, 2.0), (0.5, 1 / 0.3), (1.0, 10.0)])
@@ -442,3 +452,49 @@ def test_tumbler_preset_is_a_tapered_square_cup_without_handle():
     assert float(top[:, 0].max()) > 1.3 * float(foot[:, 0].max())              # wider at the top
     diag = torch.linalg.vector_norm(top[LODS["medium"].radial // 8, [0, 2]])
     assert float(diag) > 1.15 * float(top[0, 0])                                 # square: corners stand out
+
+
+def test_spout_tube_parameters_move_only_the_spout_tube():
+    """The spout tube's parameters move its vertices only; it goes where they say: the tip's centre
+    ``spout_reach`` beyond the wall (at least: the wall's polygon lies inside the circle) at ``spout_rise``
+    times the height, opposite the handle, and its sections shrink from ``spout_root`` to ``spout_tip``."""
+    from ipm.generators.dishes import SPOUT_TUBE
+
+    values = GEN.values("teapot")
+    theta, discrete = GEN.split(values)
+    mesh = GEN.mesh(theta, discrete, LOW)
+    J = GEN.jacobian(theta, discrete, LOW).reshape(mesh.n_verts, 3, -1)
+    names = [p.name for p in GEN.spec.continuous]
+    first = GEN.counts({"has_handle": 1}, LOW)[0]
+    for n in SPOUT_TUBE:
+        i = names.index(n)
+        assert torch.count_nonzero(J[:first, :, i]) == 0, n
+        assert torch.count_nonzero(J[first:, :, i]) > 0, n
+    sv, _ = part(mesh, "spout")
+    tip = sv[-1]
+    assert tip[1] == pytest.approx(values["spout_rise"] * values["height"], abs=1e-9)
+    hv, _ = part(mesh, "handle")
+    assert tip[0] < 0 < hv[len(hv) // 2, 0]          # handle_azimuth 0: the handle at +X, the spout at -X
+    wall = float(np.linalg.norm(part(mesh, "body")[0][:, [0, 2]], axis=1).max())
+    assert -tip[0] >= values["spout_reach"] + 0.9 * values["radius_0"] - 1e-9 and -tip[0] <= wall + values["spout_reach"]
+    ring = LOW.handle_ring
+    first_ring, last_ring = sv[1:1 + ring], sv[-1 - ring:-1]
+    r0 = np.linalg.norm(first_ring - first_ring.mean(0), axis=1)
+    r1 = np.linalg.norm(last_ring - last_ring.mean(0), axis=1)
+    assert np.allclose(r0, values["spout_root"], rtol=1e-9) and np.allclose(r1, values["spout_tip"], rtol=1e-9)
+
+
+def test_spout_tube_bend_turns_the_tip_upwards():
+    """At bend 1 the curve leaves the wall level and reaches the tip going straight up; at 0 it is straight."""
+    for bend, check in ((1.0, "curved"), (0.0, "straight")):
+        mesh = build(GEN.values("teapot", {"spout_bend": bend}), "medium")
+        sv, _ = part(mesh, "spout")
+        ring = LODS["medium"].handle_ring
+        centres = np.stack([sv[1 + k * ring:1 + (k + 1) * ring].mean(0) for k in range(LODS["medium"].handle_sections)])
+        d0, d1 = centres[1] - centres[0], centres[-1] - centres[-2]
+        if check == "curved":
+            assert abs(d0[1]) < 0.05 * np.linalg.norm(d0) and np.hypot(d1[0], d1[2]) < 0.05 * np.linalg.norm(d1)
+        else:
+            steps = np.diff(centres, axis=0)
+            unit = steps / np.linalg.norm(steps, axis=1, keepdims=True)
+            assert np.allclose(unit, unit[0], atol=1e-9)

@@ -369,8 +369,8 @@ def test_bad_cue_inputs(tmp_path, capsys):
     from PIL import Image
 
     Image.fromarray(np.zeros((32, 32), dtype=np.uint8)).save(labels / "part_000.png")
-    (labels / "parts.json").write_text(json.dumps({"labels": {"1": "spout"}}))
-    _bad(["dishes", "--masks", str(m), "--parts", str(labels)], capsys, tmp_path, "spout: not a part of dishes")
+    (labels / "parts.json").write_text(json.dumps({"labels": {"1": "lid"}}))
+    _bad(["dishes", "--masks", str(m), "--parts", str(labels)], capsys, tmp_path, "lid: not a part of dishes")
     _bad(["dishes", "--image", str(m / "view_000.png")], capsys, tmp_path, "--mask")
     _bad(["dishes", "--masks", str(m), "--mask", str(m / "view_000.png")], capsys, tmp_path, "--image")
     _bad(["building", "--masks", str(m), "--discrete", "enumerate"], capsys, tmp_path, "at most 64 combinations")

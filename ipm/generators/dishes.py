@@ -50,9 +50,18 @@ which the section then scales direction by direction):
   ``handle_width`` (across it), scaled linearly by ``1 -/+ handle_taper`` from top to bottom, plus
   per-section offsets ``handle_thicken_i`` / ``handle_widen_i`` (seven sections, splined).
 
-The body and the handle are separate closed components of one :class:`~ipm.types.TriMesh`
-(groups ``body`` and ``handle``). Vertex and face counts depend on ``has_handle`` and the level of
-detail (:class:`DishLod`) only.
+* **Spout tube** (``has_spout``; a teapot's, a watering can's). A closed tube with circular sections swept
+  along a cubic Bezier curve in the vertical plane opposite the handle (``handle_azimuth`` + 180 degrees),
+  from a root inside the wall at height ``spout_height`` (a fraction of ``height``, placed in the wall as
+  the handle's ends are, half way through it) to a free tip ``spout_reach`` beyond the wall's outer
+  surface at height ``spout_rise`` (a fraction of ``height``; above 1 the tip stands above the rim).
+  ``spout_bend`` bends the curve from the straight line (0) to one that leaves the wall horizontally and
+  reaches the tip going straight up (1). The section's radius runs linearly from ``spout_root`` to
+  ``spout_tip``. The section and ring counts are the handle's.
+
+The body, the handle and the spout are separate closed components of one :class:`~ipm.types.TriMesh`
+(groups ``body``, ``handle`` and ``spout``). Vertex and face counts depend on ``has_handle``,
+``has_spout`` and the level of detail (:class:`DishLod`) only.
 """
 
 from __future__ import annotations
@@ -80,6 +89,8 @@ SQUARE_POWER = 10.0               # superellipse exponent at section_squareness 
 SECTION_FLOOR = 1e-30
 RADIUS_MIN = 0.01                 # the outer spline is clamped to at least this radius
 SECTION_MIN = 1e-3                # smallest handle semi-axis
+SPOUT_TUBE = ("spout_height", "spout_rise", "spout_reach", "spout_root", "spout_tip", "spout_bend")
+SPOUT_EMBED = 0.5                 # the spout tube's root: half way through the wall
 
 
 @dataclass(frozen=True)
@@ -144,7 +155,8 @@ _LIFT = (0.15, 0.08, 0.0, -0.08, -0.15)
 
 
 def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
-    """The parameters of a dish with ``n_radii`` profile radii (60 continuous + ``has_handle`` for 9)."""
+    """The parameters of a dish with ``n_radii`` profile radii (66 continuous, ``has_handle`` and ``has_spout``
+    for 9)."""
     if n_radii < 3:
         raise InputError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
     ps = [_f("height", 1.0, 0.02, 4.0, "total height, base to the top of the rim")]
@@ -190,7 +202,16 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
     ps += [_f(f"handle_thicken_{i}", 0.0, -0.1, 0.1, f"half-thickness offset at handle section {i}",
               detail=True)
            for i in range(N_HANDLE)]
+    ps += [
+        _f("spout_height", 0.35, 0.05, 0.9, "spout tube's root height (fraction of height)"),
+        _f("spout_rise", 1.0, 0.3, 1.6, "spout tube's tip height (fraction of height)"),
+        _f("spout_reach", 0.45, 0.05, 1.5, "how far the spout tube's tip stands out from the wall"),
+        _f("spout_root", 0.1, 0.01, 0.4, "spout tube's section radius at the root"),
+        _f("spout_tip", 0.04, 0.005, 0.25, "spout tube's section radius at the tip"),
+        _f("spout_bend", 0.5, 0.0, 1.0, "spout tube's curve: 0 straight, 1 out of the wall level, up at the tip"),
+    ]
     ps.append(Param("has_handle", 0, 0, 1, "bool", "1: add a handle", adds="handle"))
+    ps.append(Param("has_spout", 0, 0, 1, "bool", "1: add a spout tube (a teapot's)", adds="spout"))
     return ParamSpec(tuple(ps))
 
 
@@ -226,6 +247,12 @@ PRESETS: dict[str, dict[str, Value]] = {
                 "spout_length": 0.25, "has_handle": 1, "handle_top": 0.85, "handle_bottom": 0.3,
                 "handle_reach": 0.35, "handle_width": 0.08, "handle_thickness": 0.035,
                 "handle_taper": 0.15},
+    # round-bellied teapot: the spout tube leaves the lower wall and rises above the rim
+    "teapot": {"height": 0.8, **_radii([0.42, 0.55, 0.62, 0.64, 0.62, 0.56, 0.47, 0.38, 0.32]),
+               "wall_thickness": 0.03, "bottom_thickness": 0.05, "rim_round": 1.0, "has_handle": 1,
+               "handle_top": 0.8, "handle_bottom": 0.3, "handle_reach": 0.4, "handle_width": 0.06,
+               "handle_thickness": 0.035, "has_spout": 1, "spout_height": 0.3, "spout_rise": 0.95,
+               "spout_reach": 0.65, "spout_root": 0.13, "spout_tip": 0.05, "spout_bend": 0.4},
 }
 
 
@@ -255,7 +282,7 @@ class DishesGenerator(Generator):
     # measured on the real mug scan from 1 view at 256 px, 500 evaluations: lr 0.02 ends at input IoU 0.95
     # with a wavy profile and the handle turned out of sight (held-out 0.65); 0.005 reaches 0.99 (0.90)
     mask_lr = 0.005
-    parts = ("body", "handle")
+    parts = ("body", "handle", "spout")
 
     def __init__(self, n_radii: int = N_RADII):
         self.k = int(n_radii)
@@ -265,9 +292,9 @@ class DishesGenerator(Generator):
         idx = {n: i for i, n in enumerate(self._names)}
         self._index = idx
         self._topologies: dict[tuple, mk.Topology] = {}
-        # the body's parameters come first (the handle's never move the body)
+        # the body's parameters come first (the handle's and the spout tube's never move the body)
         self._n_body = idx["handle_top"]
-        assert all(n.startswith("handle_") for n in self._names[self._n_body:])
+        assert all(n.startswith("handle_") or n in SPOUT_TUBE for n in self._names[self._n_body:])
 
         def run(first: str, count: int) -> slice:
             return slice(idx[first], idx[first] + count)
@@ -278,21 +305,27 @@ class DishesGenerator(Generator):
                         "attach": run("handle_top", 2),
                         "out": run("handle_out_1", 5), "lift": run("handle_lift_1", 5),
                         "sections": run("handle_widen_0", 2 * N_HANDLE)}
+        self._parts = tuple(p.name for p in self.spec.discrete)   # has_handle, has_spout
 
     # -- geometry ------------------------------------------------------------------------------
-    def _check(self, theta: torch.Tensor, discrete: Mapping[str, int], lod) -> tuple[int, DishLod]:
+    def _check(self, theta: torch.Tensor, discrete: Mapping[str, int], lod) -> tuple[tuple[str, ...], DishLod]:
+        """The parts besides the body that the discrete values add (``handle``, ``spout``), and the level of
+        detail."""
         n = len(self._names)
         if theta.ndim != 1 or theta.shape[0] != n:
             raise InputError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
-        prm = self.spec["has_handle"]
-        has_handle = prm.check(discrete.get("has_handle", prm.default))
-        return int(has_handle), resolve_lod(lod)
+        parts = []
+        for name in self._parts:
+            prm = self.spec[name]
+            if prm.check(discrete.get(name, prm.default)):
+                parts.append(prm.adds)
+        return tuple(parts), resolve_lod(lod)
 
-    def _stage(self, theta: torch.Tensor, has_handle: int, L: DishLod) -> dict[str, torch.Tensor]:
+    def _stage(self, theta: torch.Tensor, parts: tuple[str, ...], L: DishLod) -> dict[str, torch.Tensor]:
         """Everything before the revolution: the profile loop ``r, y (P,)``, the pole heights
         ``y_bottom, y_top (1,)``, the spout bulge factors ``q (P,)`` (per ring) and ``w (S,)`` (per
-        angle), the section's radius factors ``rho (S,)`` (per angle), and the handle's vertices
-        ``(Vh, 3)``."""
+        angle), the section's radius factors ``rho (S,)`` (per angle), and the vertices ``(Vh, 3)`` of each
+        of the ``parts`` (``handle``, ``spout``)."""
         p = _Named(theta, self._index)
         v = {key: theta[sl] for key, sl in self._slices.items()}
         v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
@@ -301,51 +334,51 @@ class DishesGenerator(Generator):
         out = {"r": prof.r, "y": prof.y, "y_bottom": prof.y_bottom, "y_top": prof.y_top,
                "q": p["spout"] * _spout_height(p, prof.y), "w": _spout_angle(p, c),
                "rho": _section(p, L.radial, theta)}
-        if has_handle:
+        if "handle" in parts:
             out["handle"] = _handle(p, v, prof, out["rho"], L)
+        if "spout" in parts:
+            out["spout"] = _spout_tube(p, prof, out["rho"], L)
         return out
 
-    def _topology(self, has_handle: int, L: DishLod) -> mk.Topology:
-        key = (has_handle, L)
+    def _topology(self, parts: tuple[str, ...], L: DishLod) -> mk.Topology:
+        key = (parts, L)
         if key not in self._topologies:
             n_prof = 2 * (L.bottom - 1) + 2 * L.wall + L.rim
             faces = [mk.loft_faces_np(n_prof, L.radial, "pole", "pole")]
             counts, names = [n_prof * L.radial + 2], ["body"]
-            if has_handle:
+            for part in parts:  # both tubes: the handle's section and ring counts
                 faces.append(mk.loft_faces_np(L.handle_sections, L.handle_ring, "pole", "pole"))
                 counts.append(L.handle_sections * L.handle_ring + 2)
-                names.append("handle")
+                names.append(part)
             self._topologies[key] = mk.Topology.build(faces, counts, names)
         return self._topologies[key]
 
     def mesh(self, theta: torch.Tensor, discrete: Mapping[str, int], lod=None) -> TriMesh:
-        """The dish for ``theta: (n,) float`` (vertices differentiable in it) and ``has_handle``.
+        """The dish for ``theta: (n,) float`` (vertices differentiable in it), ``has_handle`` and ``has_spout``.
 
-        Returns a TriMesh with groups ``body`` (and ``handle``); dtype and device follow ``theta``.
+        Returns a TriMesh with groups ``body`` (and ``handle``, ``spout``); dtype and device follow ``theta``.
         """
-        has_handle, L = self._check(theta, discrete, lod)
-        st = self._stage(theta, has_handle, L)
-        verts = _revolve(st, L.radial)
-        if has_handle:
-            verts.append(st["handle"])
-        return self._topology(has_handle, L).mesh(verts)
+        parts, L = self._check(theta, discrete, lod)
+        st = self._stage(theta, parts, L)
+        verts = _revolve(st, L.radial) + [st[part] for part in parts]
+        return self._topology(parts, L).mesh(verts)
 
     def jacobian(self, theta: torch.Tensor, discrete: Mapping[str, int], lod=None) -> torch.Tensor:
         """``d verts / d theta``: ``(3V, n)`` (rows x0, y0, z0, x1, ...), equal to
         ``mesh_jacobian(lambda t: mesh(t, ...).verts, theta)`` but faster.
 
-        Forward mode runs only through :meth:`_stage` (the profile, the section and the handle); the
-        revolved rings ``(r + q w) rho (cos, -sin)`` are products of per-ring and per-angle factors, so
-        their rows follow in closed form, and only for the body's own parameters (the handle's never
-        move the body).
+        Forward mode runs only through :meth:`_stage` (the profile, the section, the handle and the spout
+        tube); the revolved rings ``(r + q w) rho (cos, -sin)`` are products of per-ring and per-angle
+        factors, so their rows follow in closed form, and only for the body's own parameters (the handle's
+        and the spout tube's never move the body).
         """
         from torch.func import jacfwd
 
-        has_handle, L = self._check(theta, discrete, lod)
-        keys = ("r", "y", "q", "w", "rho", "y_bottom", "y_top") + (("handle",) if has_handle else ())
+        parts, L = self._check(theta, discrete, lod)
+        keys = ("r", "y", "q", "w", "rho", "y_bottom", "y_top") + parts
 
         def stage(t):
-            st = self._stage(t, has_handle, L)
+            st = self._stage(t, parts, L)
             out = tuple(st[k] for k in keys)
             return out, tuple(x.detach() for x in out)
 
@@ -357,7 +390,7 @@ class DishesGenerator(Generator):
         Jr, Jy, Jq, Jw = (J_st[k][..., :nb] for k in ("r", "y", "q", "w"))
         sec = self._slices["section"]  # the only columns of d rho / d theta that can be nonzero
         n_body = 3 * (P * S + 2)
-        n_rows = n_body + (J_st["handle"].numel() // n if has_handle else 0)
+        n_rows = n_body + sum(J_st[part].numel() // n for part in parts)
         # written in place: the (3V, n) result is tens of MB for fine meshes, and every extra pass over
         # it costs as much as a generation
         J = theta.new_empty(n_rows, n)
@@ -376,8 +409,11 @@ class DishesGenerator(Generator):
         for row, k in ((0, "y_bottom"), (n_body - 3, "y_top")):
             J[row:row + 3, :nb] = 0.0
             J[row + 1, :nb] = J_st[k][0, :nb]
-        if has_handle:
-            J[n_body:] = J_st["handle"].reshape(-1, n)
+        row = n_body
+        for part in parts:
+            rows = J_st[part].reshape(-1, n)
+            J[row:row + rows.shape[0]] = rows
+            row += rows.shape[0]
         return J
 
     def to_mesh(self, values: Mapping[str, Value], *, resolution: int | None = None, lod=None) -> TriMesh:
@@ -391,9 +427,9 @@ class DishesGenerator(Generator):
         n_prof = 2 * (L.bottom - 1) + 2 * L.wall + L.rim
         v = n_prof * L.radial + 2
         f = 2 * L.radial * (n_prof - 1) + 2 * L.radial
-        if int(discrete.get("has_handle", 0)):
-            v += L.handle_sections * L.handle_ring + 2
-            f += 2 * L.handle_ring * (L.handle_sections - 1) + 2 * L.handle_ring
+        tubes = sum(int(discrete.get(name, 0)) for name in ("has_handle", "has_spout"))
+        v += tubes * (L.handle_sections * L.handle_ring + 2)
+        f += tubes * (2 * L.handle_ring * (L.handle_sections - 1) + 2 * L.handle_ring)
         return v, f
 
 
@@ -564,21 +600,9 @@ def _handle(p, v, prof: _Profile, rho: torch.Tensor, L: DishLod) -> torch.Tensor
     section's radius factor at the ring angles (:func:`_section`)."""
     radii = v["radii"]
     dt, dev = radii.dtype, radii.device
-    H, Hw = p["height"], prof.wall_top
     alpha = smul(p["handle_azimuth"], math.pi / 180.0)
     ca, sa = torch.cos(alpha), torch.sin(alpha)
-    # attachment points inside the wall *as meshed*: the walls' sampled profiles interpolated
-    # linearly (as the faces do) and the outer radius scaled by cos(pi / radial) (the polygon's
-    # inscribed circle), `embed` of the way from the outer to the inner surface; then both scaled by
-    # `_section_at`, since the section's polygon lies between h cos(pi / radial) and h there, as the
-    # circle's between the two radii used here
-    b, m = prof.bottom, prof.outer.shape[0]
-    y_att = torch.minimum(torch.maximum(v["attach"] * H, b), Hw)                     # (2,) top, bottom
-    R_att = _lerp_samples(prof.outer, smul(y_att / Hw, float(m - 1)))
-    r_in = _lerp_samples(prof.inner, smul((y_att - b) / (Hw - b), float(m - 1)))
-    bulge = p["spout"] * _spout_height(p, y_att) * _spout_angle(p, ca)
-    outer = smul(R_att + bulge, math.cos(math.pi / L.radial))
-    rho_att = (outer - p["handle_embed"] * (outer - (r_in + bulge))) * _section_at(rho, alpha)  # (2,)
+    y_att, rho_att, _ = _in_wall(p, prof, rho, L, v["attach"], alpha, ca, p["handle_embed"])   # (2,) top, bottom
     # control points in the handle's plane: (rho, y)
     s = mk.const(mk.steps, 1, N_HANDLE - 1, 1.0 / (N_HANDLE - 1), like=radii)
     top, bot = rho_att[:1], rho_att[1:]
@@ -600,15 +624,78 @@ def _handle(p, v, prof: _Profile, rho: torch.Tensor, L: DishLod) -> torch.Tensor
     offs = mk.catmull_rom_matrix(N_HANDLE, m, dt, dev) @ v["sections"]               # (m, 2)
     bw = torch.clamp(p["handle_width"] * taper + offs[:, 0], min=SECTION_MIN)
     a = torch.clamp(p["handle_thickness"] * taper + offs[:, 1], min=SECTION_MIN)
-    c, sn = mk.angles(L.handle_ring, radii)
+    return _tube(centers, tang, a, bw, ca, sa, L.handle_ring)
+
+
+def _in_wall(p, prof: _Profile, rho: torch.Tensor, L: DishLod, heights: torch.Tensor, alpha: torch.Tensor,
+             ca: torch.Tensor, embed: torch.Tensor | float):
+    """Points inside the wall *as meshed* at ``heights`` (fractions of the height, ``(m,)``) in the direction
+    ``alpha (1,)`` (``ca``: its cosine): ``(y, rho, outer)``, the heights (kept between the inner bottom and
+    the top of the wall), the radii ``embed`` of the way from the outer to the inner surface, and the outer
+    surface's radii.
+
+    The walls' sampled profiles are interpolated linearly (as the faces do) and the outer radius scaled by
+    cos(pi / radial) (the polygon's inscribed circle); then both are scaled by :func:`_section_at`, since the
+    section's polygon lies between ``h cos(pi / radial)`` and ``h`` there, as the circle's between the two
+    radii used here."""
+    H, Hw = p["height"], prof.wall_top
+    b, m = prof.bottom, prof.outer.shape[0]
+    y = torch.minimum(torch.maximum(heights * H, b), Hw)
+    R_att = _lerp_samples(prof.outer, smul(y / Hw, float(m - 1)))
+    r_in = _lerp_samples(prof.inner, smul((y - b) / (Hw - b), float(m - 1)))
+    bulge = p["spout"] * _spout_height(p, y) * _spout_angle(p, ca)
+    outer = smul(R_att + bulge, math.cos(math.pi / L.radial))
+    h = _section_at(rho, alpha)
+    return y, (outer - embed * (outer - (r_in + bulge))) * h, outer * h
+
+
+def _tube(centers: torch.Tensor, tang: torch.Tensor, a: torch.Tensor, bw: torch.Tensor, ca: torch.Tensor,
+          sa: torch.Tensor, ring: int) -> torch.Tensor:
+    """A closed tube's vertices ``(m * ring + 2, 3)`` (loft layout with poles) about a curve in the vertical
+    plane at azimuth cosine ``ca`` and sine ``sa``: section centres ``(m, 2)`` and unit tangents ``(m, 2)``
+    as ``(rho, y)``, elliptic sections with semi-axes ``a (m,)`` in the plane and ``bw (m,)`` across it."""
+    c, sn = mk.angles(ring, centers)
     ac = a[:, None] * c                                                              # (m, Q)
     R_loc = centers[:, :1] + ac * (-tang[:, 1:])                                     # in-plane normal
     Y_loc = centers[:, 1:] + ac * tang[:, :1]
     B_loc = bw[:, None] * sn
-    ring = torch.stack([R_loc * ca + B_loc * sa, Y_loc, B_loc * ca - R_loc * sa], -1).reshape(-1, 3)
+    rings = torch.stack([R_loc * ca + B_loc * sa, Y_loc, B_loc * ca - R_loc * sa], -1).reshape(-1, 3)
     ends = centers[[0, -1]]                                                          # (2, 2)
     poles = torch.stack([ends[:, 0] * ca, ends[:, 1], -(ends[:, 0] * sa)], -1)
-    return torch.cat([poles[:1], ring, poles[1:]])
+    return torch.cat([poles[:1], rings, poles[1:]])
+
+
+def _spout_tube(p, prof: _Profile, rho: torch.Tensor, L: DishLod) -> torch.Tensor:
+    """The spout tube's vertices ``(sections * ring + 2, 3)`` (module docstring): a cubic Bezier from the root
+    in the wall to the free tip, opposite the handle."""
+    H = p["height"]
+    alpha = sadd(smul(p["handle_azimuth"], math.pi / 180.0), math.pi)
+    ca, sa = torch.cos(alpha), torch.sin(alpha)
+    y0, r0, outer = _in_wall(p, prof, rho, L, p["spout_height"], alpha, ca, SPOUT_EMBED)
+    p0 = torch.cat([r0, y0])
+    p3 = torch.cat([outer + p["spout_reach"], p["spout_rise"] * H])
+    d = p3 - p0
+    dlen = torch.sqrt(sadd((d * d).sum(), 1e-20)).reshape(1)
+    bend = p["spout_bend"]
+    zero = torch.zeros_like(dlen)
+    p1 = p0 + (ssub(1.0, bend) * d + bend * torch.cat([dlen, zero])) / 3.0       # leaves level at bend 1
+    p2 = p3 - (ssub(1.0, bend) * d + bend * torch.cat([zero, dlen])) / 3.0       # arrives vertical at bend 1
+    ctrl = torch.stack([p0, p1, p2, p3])                                            # (4, 2)
+    basis, dbasis = mk.const(_bezier_basis, L.handle_sections, like=H)              # (m, 4) each
+    centers, tang = basis @ ctrl, dbasis @ ctrl
+    tang = tang / torch.sqrt(sadd((tang * tang).sum(-1, keepdim=True), 1e-20))
+    t = mk.const(np.linspace, 0.0, 1.0, L.handle_sections, like=H)
+    radius = torch.clamp(p["spout_root"] + (p["spout_tip"] - p["spout_root"]) * t, min=SECTION_MIN)
+    return _tube(centers, tang, radius, radius, ca, sa, L.handle_ring)
+
+
+def _bezier_basis(m: int) -> np.ndarray:
+    """``(2, m, 4)``: the cubic Bernstein polynomials and their derivatives at ``m`` evenly spaced parameters."""
+    t = np.linspace(0.0, 1.0, m)[:, None]
+    u = 1.0 - t
+    b = np.concatenate([u ** 3, 3 * u * u * t, 3 * u * t * t, t ** 3], 1)
+    db = np.concatenate([-3 * u * u, 3 * u * u - 6 * u * t, 6 * u * t - 3 * t * t, 3 * t * t], 1)
+    return np.stack([b, db])
 
 
 @register_generator("dishes")

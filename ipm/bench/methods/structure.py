@@ -21,6 +21,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, fields
 
+import torch
+
 from ipm.bench.methods import Prediction, Task, method
 from ipm.bench.views import check_task
 from ipm.errors import InputError, MethodFailed
@@ -72,7 +74,7 @@ def structure_search(task: Task, s: StructureMethodSettings, budget: int, seed: 
     cfg = StructureSettings(**s.search, budget=budget, seed=seed)
     t0 = time.perf_counter()
     samples = mask_samples(task.masks, task.cameras, volume=cfg.volume, grid=cfg.grid, seed=cfg.seed,
-                           rays=cfg.rays, fine_rays=cfg.fine_rays)
+                           rays=cfg.rays, fine_rays=cfg.fine_rays).to(dtype=torch.float32)  # as ipm fit searches
     res = search(samples, cfg)
     gen = SdfTreeGenerator(tree_from_json({"tree": res.tree}))
     shape = gen.to_mesh(gen.spec.defaults(), resolution=s.resolution)
