@@ -68,6 +68,10 @@ def register(app: typer.Typer) -> None:
         for init, r in S.learned_start(out).items():
             counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
             print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
+        print("a spout tube (#34): a real teapot from one view, the spout searched and held off ...", flush=True)
+        for name, r in S.teapot_spout(out).items():
+            print(f"  {name:15s} held-out IoU {r['heldout_iou']:.3f} (has_spout {r['has_spout']}) in "
+                  f"{r['wall_time_s']} s")
         print("universal SDF generator: meshes and Jacobians ...", flush=True)
         for name, r in S.sdf_showcase(out).items():
             print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
@@ -80,7 +84,7 @@ def register(app: typer.Typer) -> None:
         print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
         print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
               "bottle_revolved.obj; outline.png and outline.svg")
-        print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json")
+        print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json; teapot/ alike")
         print("  exports/: armchair_exact.obj (exact CSG), armchair.usda (parameters as customData), armchair.scad and "
               "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
