@@ -427,7 +427,7 @@ class DishesGenerator(Generator):
         n_prof = 2 * (L.bottom - 1) + 2 * L.wall + L.rim
         v = n_prof * L.radial + 2
         f = 2 * L.radial * (n_prof - 1) + 2 * L.radial
-        tubes = sum(int(discrete.get(name, 0)) for name in ("has_handle", "has_spout"))
+        tubes = sum(int(discrete.get(name, 0)) for name in self._parts)
         v += tubes * (L.handle_sections * L.handle_ring + 2)
         f += tubes * (2 * L.handle_ring * (L.handle_sections - 1) + 2 * L.handle_ring)
         return v, f

@@ -8,8 +8,9 @@ Loop topology insert sits at a vertex of the finer body: the one halfway between
 loft's (ring, angle) grid. So the ground truth of every level is read off the generator itself, with no
 projection (Liu et al. 2020 had to build such maps with edge collapses and conformal flattening).
 
-The handle and the spout tube are left out (``has_handle = has_spout = 0``): their end caps are fans around
-poles that are not on their sweeps' grids, so the inserted vertices of the caps have no exact counterpart.
+Every part a discrete switch adds (:func:`body_only`: the handle, the spout tube) is left out: their end caps
+are fans around poles that are not on their sweeps' grids, so the inserted vertices of the caps have no exact
+counterpart.
 """
 
 from __future__ import annotations
@@ -84,7 +85,7 @@ def dish_pair(values: dict, levels: int, dtype=torch.float64) -> Pair:
     from ipm.subdiv.halfflap import next_level
 
     gen = get_generator("dishes")
-    values = {**values, "has_handle": 0, "has_spout": 0}
+    values = body_only(gen, values)
     theta, d = gen.split(gen.spec.validate(values), dtype)
     lod = resolve_lod(COARSE)
     coarse = gen.mesh(theta, d, lod)
@@ -128,6 +129,10 @@ def random_dishes(n: int, rng: np.random.Generator, presets: tuple[str, ...] | N
         for p in gen.spec.continuous:
             span = p.hi - p.lo
             v[p.name] = float(np.clip(float(v[p.name]) + rng.uniform(-SPREAD, SPREAD) * span, p.lo, p.hi))
-        v["has_handle"] = v["has_spout"] = 0
-        out.append(v)
+        out.append(body_only(gen, v))
     return out
+
+
+def body_only(gen, values: dict) -> dict:
+    """``values`` with every discrete parameter that adds a part (``Param.adds``) switched off: the body alone."""
+    return {**values, **{p.name: 0 for p in gen.spec.discrete if p.adds}}
