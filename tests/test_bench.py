@@ -295,13 +295,15 @@ def test_rows_list_the_discrete_parts_the_input_views_hide(tmp_path):
                    'params = { handle_azimuth = 120.0 }\n'
                    '[[methods]]\nname = "vh"\nmethod = "visual-hull"\nresolution = 24\n')
     rows = {c.views: harness.run_cell(str(exp.resolve()), c) for c in load_experiment(exp).cells()}
-    # the spout tube a mug could have would point at the camera (opposite the handle): hidden too
-    assert rows[1]["hidden_discrete"] == {"has_handle": [0], "has_spout": [1]}, rows[1]
-    assert rows[2]["hidden_discrete"] == {}, rows[2]
+    # the spout tube a mug could have would point at the camera (opposite the handle): hidden too; and a
+    # lid knob of the default size stands inside the mug's opening, below its rim: hidden from two views too
+    assert rows[1]["hidden_discrete"] == {"has_handle": [0], "has_spout": [1], "has_knob": [1]}, rows[1]
+    assert rows[2]["hidden_discrete"] == {"has_knob": [1]}, rows[2]
     from ipm.bench.tables import hidden_markdown
 
     text = hidden_markdown(list(rows.values()))
-    assert "- mug, 1 view: has_handle (also 0), has_spout (also 1)" in text and "- mug, 2 views: none" in text, text
+    assert "- mug, 1 view: has_handle (also 0), has_knob (also 1), has_spout (also 1)" in text, text
+    assert "- mug, 2 views: has_knob (also 1)" in text, text
 
 
 def test_a_second_bench_on_the_same_folder_is_refused(tmp_path):

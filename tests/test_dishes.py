@@ -5,6 +5,8 @@ round meshes of before, its rings are the superellipses it names, and it keeps a
 
 from __future__ import annotations
 
+import itertools
+
 import igl
 import numpy as np
 import pytest
@@ -91,6 +93,9 @@ def test_presets_are_closed_solids_with_a_touching_handle(preset):
     check_closed_solid(*part(mesh, "body"), f"{preset} body")
     assert ("handle" in mesh.group_names) == bool(values["has_handle"])
     assert ("spout" in mesh.group_names) == bool(values["has_spout"])
+    assert ("knob" in mesh.group_names) == bool(values["has_knob"])
+    if values["has_knob"]:
+        check_closed_solid(*part(mesh, "knob"), f"{preset} knob")
     if values["has_spout"]:
         check_closed_solid(*part(mesh, "spout"), f"{preset} spout")
         check_handle_touches_body(mesh, preset, LODS["medium"].radial, "spout")
@@ -116,13 +121,15 @@ def test_random_parameters_always_give_closed_solids():
         if values["has_spout"]:
             check_closed_solid_fast(*part(mesh, "spout"), what)
             check_handle_touches_body(mesh, what, LOW.radial, "spout")
+        if values["has_knob"]:
+            check_closed_solid_fast(*part(mesh, "knob"), what)
 
 
 def test_counts_depend_only_on_discrete_values_and_lod():
     rng = np.random.default_rng(3)
     a, b = GEN.spec.random(rng), GEN.spec.random(rng)
-    for has_handle, has_spout in ((0, 0), (1, 0), (0, 1), (1, 1)):
-        d = {"has_handle": has_handle, "has_spout": has_spout}
+    for combo in itertools.product((0, 1), repeat=3):
+        d = dict(zip(("has_handle", "has_spout", "has_knob"), combo))
         a.update(d)
         b.update(d)
         ma, mb = build(a), build(b)
@@ -482,6 +489,35 @@ def test_spout_tube_parameters_move_only_the_spout_tube():
     r0 = np.linalg.norm(first_ring - first_ring.mean(0), axis=1)
     r1 = np.linalg.norm(last_ring - last_ring.mean(0), axis=1)
     assert np.allclose(r0, values["spout_root"], rtol=1e-9) and np.allclose(r1, values["spout_tip"], rtol=1e-9)
+
+
+def test_knob_parameters_move_only_the_knob():
+    """The knob's parameters move its vertices only, and it is where they say: on the axis, ``knob_radius``
+    wide, from ``knob_sink`` of its height below the top of the rim to ``knob_height`` above that."""
+    from ipm.generators.dishes import KNOB
+
+    values = GEN.values("teapot", {"knob_radius": 0.09, "knob_height": 0.12, "knob_sink": 0.25})
+    theta, discrete = GEN.split(values)
+    mesh = GEN.mesh(theta, discrete, LOW)
+    J = GEN.jacobian(theta, discrete, LOW).reshape(mesh.n_verts, 3, -1)
+    names = [p.name for p in GEN.spec.continuous]
+    first = GEN.counts({"has_handle": 1, "has_spout": 1}, LOW)[0]
+    for n in KNOB:
+        i = names.index(n)
+        assert torch.count_nonzero(J[:first, :, i]) == 0, n
+        assert torch.count_nonzero(J[first:, :, i]) > 0, n
+    kv, kf = part(mesh, "knob")
+    check_closed_solid(kv, kf, "knob")
+    bottom = values["height"] - 0.25 * 0.12
+    assert kv[:, 1].min() == pytest.approx(bottom, abs=1e-12)
+    assert kv[:, 1].max() == pytest.approx(bottom + 0.12, abs=1e-12)
+    width = np.linalg.norm(kv[:, [0, 2]], axis=1)
+    assert 0.09 * np.cos(np.pi / LOW.handle_sections) <= width.max() <= 0.09 + 1e-12  # sampled meridian
+    assert np.allclose(kv[:, [0, 2]].mean(0), 0.0, atol=1e-12)        # on the axis
+    # the presets without a knob have none; the teapot's stands above its rim
+    assert "knob" not in build(GEN.values("mug"), "low").group_names
+    top = part(build(GEN.values("teapot"), "low"), "knob")[0][:, 1].max()
+    assert top > GEN.values("teapot")["height"]
 
 
 def test_spout_tube_bend_turns_the_tip_upwards():

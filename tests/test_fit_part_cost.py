@@ -23,7 +23,8 @@ def test_only_discrete_parameters_add_parts():
 
 def test_switches_that_add_parts_say_so():
     spec = get_generator("dishes").spec
-    assert [(p.name, p.adds) for p in spec.discrete if p.adds] == [("has_handle", "handle"), ("has_spout", "spout")]
+    assert [(p.name, p.adds) for p in spec.discrete if p.adds] == [("has_handle", "handle"), ("has_spout", "spout"),
+                                                                         ("has_knob", "knob")]
     spec = get_generator("building").spec
     assert [(p.name, p.adds) for p in spec.discrete if p.adds] == [("wings", "wing"), ("roof_boxes", "roof box")]
 

@@ -89,3 +89,19 @@ def test_best_pose_keeps_a_candidates_own_pose_when_it_fits_best():
     seen.clear()
     best_pose(ev, space, torch.tensor([0.2, 0.3, 0.1, 0.1], dtype=torch.float64), {})
     assert len(seen) == 2
+
+
+def test_the_first_population_takes_each_discrete_combination_before_a_second_preset_of_one():
+    """Ranked presets are reordered so that a combination no kept start and no better preset has comes in
+    first (its best preset), then the rest in their ranked order; each list keeps its points."""
+    from ipm.optim.strategies.memetic import combinations_first
+
+    def entry(i, handle, spout=0):
+        return torch.full((2,), float(i)), {"has_handle": handle, "has_spout": spout}
+
+    starts = [entry(0, 1), entry(1, 1)]
+    presets = [entry(10, 1), entry(11, 0), entry(12, 1), entry(13, 0), entry(14, 1, 1), entry(15, 1, 1)]
+    got = [int(x[0]) for x, _ in combinations_first(presets, starts)]
+    assert got == [11, 14, 10, 12, 13, 15]
+    assert combinations_first([], starts) == [] and len(combinations_first(presets, [])) == len(presets)
+    assert [int(x[0]) for x, _ in combinations_first(presets, [])] == [10, 11, 14, 12, 13, 15]

@@ -173,7 +173,7 @@ def test_a_fit_started_from_proposals_says_so(tmp_path, capsys):
         assert code == 0, err
         start = json.loads((run / "result.json").read_text())["start"]
         assert start["init"] == init and 1 <= len(start["proposals"]) <= 4
-        assert all(set(p["discrete"]) == {"has_handle", "has_spout"} for p in start["proposals"])
+        assert all(set(p["discrete"]) == {"has_handle", "has_spout", "has_knob"} for p in start["proposals"])
         phases = [json.loads(line)["phase"] for line in (run / "trajectory.jsonl").read_text().splitlines()]
         assert "init:learned" in phases
     # presets: no proposals looked at
@@ -219,7 +219,7 @@ def test_the_proposal_bench_method_poses_the_guess_with_two_evaluations():
     masks = torch.stack([rasterize(V, mesh.faces, c).mask for c in cams]).float()
     settings = METHODS["proposal"].parse("proposal", {"generator": "dishes"})
     pred = METHODS["proposal"](Task(masks, cams), settings, 2, 0)
-    assert pred.evaluations == 2 and pred.info["discrete"] == {"has_handle": 1, "has_spout": 0}
+    assert pred.evaluations == 2 and pred.info["discrete"] == {"has_handle": 1, "has_spout": 0, "has_knob": 0}
     seen = rasterize(pred.mesh.verts, pred.mesh.faces, cams[0]).mask
     assert _iou(seen.float(), masks[0]) > 0.75
 

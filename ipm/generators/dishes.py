@@ -1,5 +1,6 @@
 """Dishes: a revolved, thick-walled vessel (mug, cup, glass, bowl, plate, vase, bottle, pitcher,
-square tumbler) with an optional handle, differentiable in all continuous parameters.
+square tumbler) with an optional handle, spout tube and lid knob, differentiable in all continuous
+parameters.
 
 Geometry (Y up, the base at y = 0, revolved about Y; the radii below are those of a round section,
 which the section then scales direction by direction):
@@ -59,9 +60,14 @@ which the section then scales direction by direction):
   reaches the tip going straight up (1). The section's radius runs linearly from ``spout_root`` to
   ``spout_tip``. The section and ring counts are the handle's.
 
-The body, the handle and the spout are separate closed components of one :class:`~ipm.types.TriMesh`
-(groups ``body``, ``handle`` and ``spout``). Vertex and face counts depend on ``has_handle``,
-``has_spout`` and the level of detail (:class:`DishLod`) only.
+* **Knob** (``has_knob``; a lid's, on teapots, sugar bowls and jars). A closed spheroid on the axis, ``knob_radius``
+  wide and ``knob_height`` tall, sunk ``knob_sink`` of its height below the top of the rim (so it stands on a
+  lid that closes in towards the axis, and floats in a wide opening, where a fit has no reason to keep it).
+  Meshed as a tube along the axis with the handle's section and ring counts.
+
+The body, the handle, the spout and the knob are separate closed components of one :class:`~ipm.types.TriMesh`
+(groups ``body``, ``handle``, ``spout`` and ``knob``). Vertex and face counts depend on ``has_handle``,
+``has_spout``, ``has_knob`` and the level of detail (:class:`DishLod`) only.
 """
 
 from __future__ import annotations
@@ -91,6 +97,7 @@ RADIUS_MIN = 0.01                 # the outer spline is clamped to at least this
 SECTION_MIN = 1e-3                # smallest handle semi-axis
 SPOUT_TUBE = ("spout_height", "spout_rise", "spout_reach", "spout_root", "spout_tip", "spout_bend")
 SPOUT_EMBED = 0.5                 # the spout tube's root: half way through the wall
+KNOB = ("knob_radius", "knob_height", "knob_sink")
 
 
 @dataclass(frozen=True)
@@ -155,8 +162,8 @@ _LIFT = (0.15, 0.08, 0.0, -0.08, -0.15)
 
 
 def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
-    """The parameters of a dish with ``n_radii`` profile radii (66 continuous, ``has_handle`` and ``has_spout``
-    for 9)."""
+    """The parameters of a dish with ``n_radii`` profile radii (69 continuous, ``has_handle``, ``has_spout`` and
+    ``has_knob`` for 9)."""
     if n_radii < 3:
         raise InputError(f"n_radii: expected at least 3 profile radii, got {n_radii}")
     ps = [_f("height", 1.0, 0.02, 4.0, "total height, base to the top of the rim")]
@@ -210,8 +217,14 @@ def dish_spec(n_radii: int = N_RADII) -> ParamSpec:
         _f("spout_tip", 0.04, 0.005, 0.25, "spout tube's section radius at the tip"),
         _f("spout_bend", 0.5, 0.0, 1.0, "spout tube's curve: 0 straight, 1 out of the wall level, up at the tip"),
     ]
+    ps += [
+        _f("knob_radius", 0.06, 0.005, 0.5, "lid knob's half width"),
+        _f("knob_height", 0.08, 0.005, 0.5, "lid knob's height"),
+        _f("knob_sink", 0.3, 0.0, 0.9, "lid knob's depth below the top of the rim (fraction of its height)"),
+    ]
     ps.append(Param("has_handle", 0, 0, 1, "bool", "1: add a handle", adds="handle"))
     ps.append(Param("has_spout", 0, 0, 1, "bool", "1: add a spout tube (a teapot's)", adds="spout"))
+    ps.append(Param("has_knob", 0, 0, 1, "bool", "1: add a lid knob on the axis", adds="knob"))
     return ParamSpec(tuple(ps))
 
 
@@ -252,7 +265,8 @@ PRESETS: dict[str, dict[str, Value]] = {
                "wall_thickness": 0.03, "bottom_thickness": 0.05, "rim_round": 1.0, "has_handle": 1,
                "handle_top": 0.8, "handle_bottom": 0.3, "handle_reach": 0.4, "handle_width": 0.06,
                "handle_thickness": 0.035, "has_spout": 1, "spout_height": 0.3, "spout_rise": 0.95,
-               "spout_reach": 0.65, "spout_root": 0.13, "spout_tip": 0.05, "spout_bend": 0.4},
+               "spout_reach": 0.65, "spout_root": 0.13, "spout_tip": 0.05, "spout_bend": 0.4,
+               "has_knob": 1, "knob_radius": 0.07, "knob_height": 0.1, "knob_sink": 0.3},
 }
 
 
@@ -273,16 +287,16 @@ def _resample_presets(n_radii: int) -> dict[str, dict[str, Value]]:
 # ----------------------------------------------------------------------------------------------
 
 class DishesGenerator(Generator):
-    """Revolved vessels with an optional handle (see the module docstring)."""
+    """Revolved vessels with an optional handle, spout tube and lid knob (see the module docstring)."""
 
     name = "dishes"
     kind = "mesh"
     description = ("revolved vessel (spline profile, wall thickness, rim, spout, round to square section) "
-                   "with an optional handle")
+                   "with an optional handle, spout tube and lid knob")
     # measured on the real mug scan from 1 view at 256 px, 500 evaluations: lr 0.02 ends at input IoU 0.95
     # with a wavy profile and the handle turned out of sight (held-out 0.65); 0.005 reaches 0.99 (0.90)
     mask_lr = 0.005
-    parts = ("body", "handle", "spout")
+    parts = ("body", "handle", "spout", "knob")
 
     def __init__(self, n_radii: int = N_RADII):
         self.k = int(n_radii)
@@ -292,9 +306,9 @@ class DishesGenerator(Generator):
         idx = {n: i for i, n in enumerate(self._names)}
         self._index = idx
         self._topologies: dict[tuple, mk.Topology] = {}
-        # the body's parameters come first (the handle's and the spout tube's never move the body)
+        # the body's parameters come first (the handle's, the spout tube's and the knob's never move the body)
         self._n_body = idx["handle_top"]
-        assert all(n.startswith("handle_") or n in SPOUT_TUBE for n in self._names[self._n_body:])
+        assert all(n.startswith("handle_") or n in SPOUT_TUBE + KNOB for n in self._names[self._n_body:])
 
         def run(first: str, count: int) -> slice:
             return slice(idx[first], idx[first] + count)
@@ -305,12 +319,12 @@ class DishesGenerator(Generator):
                         "attach": run("handle_top", 2),
                         "out": run("handle_out_1", 5), "lift": run("handle_lift_1", 5),
                         "sections": run("handle_widen_0", 2 * N_HANDLE)}
-        self._parts = tuple(p.name for p in self.spec.discrete)   # has_handle, has_spout
+        self._parts = tuple(p.name for p in self.spec.discrete)   # has_handle, has_spout, has_knob
 
     # -- geometry ------------------------------------------------------------------------------
     def _check(self, theta: torch.Tensor, discrete: Mapping[str, int], lod) -> tuple[tuple[str, ...], DishLod]:
-        """The parts besides the body that the discrete values add (``handle``, ``spout``), and the level of
-        detail."""
+        """The parts besides the body that the discrete values add (``handle``, ``spout``, ``knob``), and the
+        level of detail."""
         n = len(self._names)
         if theta.ndim != 1 or theta.shape[0] != n:
             raise InputError(f"theta: expected shape ({n},), got {tuple(theta.shape)}")
@@ -325,7 +339,7 @@ class DishesGenerator(Generator):
         """Everything before the revolution: the profile loop ``r, y (P,)``, the pole heights
         ``y_bottom, y_top (1,)``, the spout bulge factors ``q (P,)`` (per ring) and ``w (S,)`` (per
         angle), the section's radius factors ``rho (S,)`` (per angle), and the vertices ``(Vh, 3)`` of each
-        of the ``parts`` (``handle``, ``spout``)."""
+        of the ``parts`` (``handle``, ``spout``, ``knob``)."""
         p = _Named(theta, self._index)
         v = {key: theta[sl] for key, sl in self._slices.items()}
         v["sections"] = v["sections"].reshape(2, N_HANDLE).T                 # (7, 2): widen, thicken
@@ -338,6 +352,8 @@ class DishesGenerator(Generator):
             out["handle"] = _handle(p, v, prof, out["rho"], L)
         if "spout" in parts:
             out["spout"] = _spout_tube(p, prof, out["rho"], L)
+        if "knob" in parts:
+            out["knob"] = _knob(p, L)
         return out
 
     def _topology(self, parts: tuple[str, ...], L: DishLod) -> mk.Topology:
@@ -346,7 +362,7 @@ class DishesGenerator(Generator):
             n_prof = 2 * (L.bottom - 1) + 2 * L.wall + L.rim
             faces = [mk.loft_faces_np(n_prof, L.radial, "pole", "pole")]
             counts, names = [n_prof * L.radial + 2], ["body"]
-            for part in parts:  # both tubes: the handle's section and ring counts
+            for part in parts:  # every tube (handle, spout, knob): the handle's section and ring counts
                 faces.append(mk.loft_faces_np(L.handle_sections, L.handle_ring, "pole", "pole"))
                 counts.append(L.handle_sections * L.handle_ring + 2)
                 names.append(part)
@@ -354,9 +370,11 @@ class DishesGenerator(Generator):
         return self._topologies[key]
 
     def mesh(self, theta: torch.Tensor, discrete: Mapping[str, int], lod=None) -> TriMesh:
-        """The dish for ``theta: (n,) float`` (vertices differentiable in it), ``has_handle`` and ``has_spout``.
+        """The dish for ``theta: (n,) float`` (vertices differentiable in it), ``has_handle``, ``has_spout`` and
+        ``has_knob``.
 
-        Returns a TriMesh with groups ``body`` (and ``handle``, ``spout``); dtype and device follow ``theta``.
+        Returns a TriMesh with groups ``body`` (and ``handle``, ``spout``, ``knob``); dtype and device follow
+        ``theta``.
         """
         parts, L = self._check(theta, discrete, lod)
         st = self._stage(theta, parts, L)
@@ -367,10 +385,10 @@ class DishesGenerator(Generator):
         """``d verts / d theta``: ``(3V, n)`` (rows x0, y0, z0, x1, ...), equal to
         ``mesh_jacobian(lambda t: mesh(t, ...).verts, theta)`` but faster.
 
-        Forward mode runs only through :meth:`_stage` (the profile, the section, the handle and the spout
-        tube); the revolved rings ``(r + q w) rho (cos, -sin)`` are products of per-ring and per-angle
+        Forward mode runs only through :meth:`_stage` (the profile, the section, the handle, the spout
+        tube and the knob); the revolved rings ``(r + q w) rho (cos, -sin)`` are products of per-ring and per-angle
         factors, so their rows follow in closed form, and only for the body's own parameters (the handle's
-        and the spout tube's never move the body).
+        the spout tube's and the knob's never move the body).
         """
         from torch.func import jacfwd
 
@@ -687,6 +705,28 @@ def _spout_tube(p, prof: _Profile, rho: torch.Tensor, L: DishLod) -> torch.Tenso
     t = mk.const(np.linspace, 0.0, 1.0, L.handle_sections, like=H)
     radius = torch.clamp(p["spout_root"] + (p["spout_tip"] - p["spout_root"]) * t, min=SECTION_MIN)
     return _tube(centers, tang, radius, radius, ca, sa, L.handle_ring)
+
+
+def _knob(p, L: DishLod) -> torch.Tensor:
+    """The lid knob's vertices ``(sections * ring + 2, 3)`` (module docstring): a spheroid on the axis, meshed as a
+    tube along it whose section radius is the spheroid's at cosine-spaced heights."""
+    H, a, h = p["height"], p["knob_radius"], p["knob_height"]
+    cos_t, sin_t = mk.const(_knob_arc, L.handle_sections, like=H)                 # (m,) each
+    half = smul(h, 0.5)
+    center = H + half - p["knob_sink"] * h
+    y = center - half * cos_t
+    zero = torch.zeros_like(y)
+    centers = torch.stack([zero, y], -1)                                           # (m, 2): on the axis
+    tang = torch.stack([zero, torch.ones_like(y)], -1)
+    radius = torch.clamp(a * sin_t, min=SECTION_MIN)
+    one = torch.ones_like(H)
+    return _tube(centers, tang, radius, radius, one, torch.zeros_like(H), L.handle_ring)
+
+
+def _knob_arc(m: int) -> np.ndarray:
+    """``(2, m)``: cos and sin of ``m`` evenly spaced angles from 0 to pi (the knob's meridian)."""
+    t = np.linspace(0.0, math.pi, m)
+    return np.stack([np.cos(t), np.sin(t)])
 
 
 def _bezier_basis(m: int) -> np.ndarray:

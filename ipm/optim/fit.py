@@ -167,9 +167,11 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     if isinstance(target, MaskTarget) and (target.parts is not None or target.depth is not None) and space.discrete:
         outline_first(prob, ev, space, settings)
     polish = int(settings.budget * settings.polish)
-    # the tie rule's evaluations (one per searched discrete value) are kept from the polish; those it
-    # does not need go back to the winner
-    n_tie = len(prob.searched) if settings.ties and isinstance(target, MaskTarget) else 0
+    # the tie rule's evaluations (one per searched discrete value, and one more per part it adds that is a
+    # part of the mesh: ties.owned_parameters) are kept from the polish; those it does not need go back to
+    # the winner
+    n_tie = (len(prob.searched) + sum(1 for p in prob.searched if p.adds in getattr(gen, "parts", ()))
+             if settings.ties and isinstance(target, MaskTarget) else 0)
     # with nothing discrete to search, every strategy is the multistart of "none"
     strategy = STRATEGIES[settings.discrete if space.discrete else "none"]
     with ev.running(SEARCH, until=max(ev.count + 1, settings.budget - polish)):

@@ -83,11 +83,11 @@ def _first_candidates(space: Space, s: MemeticSettings, rng: np.random.Generator
     """The first population's candidates (point, discrete values), and how many of them are kept starts."""
     # the kept starts (the best poses of the grid: a symmetric body seen from few views often leaves
     # several poses close, and the right one only wins after its shape is refined), then the presets
-    # (diverse discrete values), then random individuals
+    # (each discrete combination's best first: combinations_first), then random individuals
     # (when the start looks alike from every yaw, its poses are one start: pose_search poses the rest)
     n_starts = 1 if space.pose_search is not None else max(1, s.population // 2)
     if space.outline is None:
-        candidates = list(space.starts[:n_starts]) + list(space.presets)
+        candidates = list(space.starts[:n_starts]) + combinations_first(space.presets, space.starts[:n_starts])
         while len(candidates) < s.population:
             candidates.append(_random_individual(space, rng))
         return candidates, n_starts
@@ -101,6 +101,21 @@ def _first_candidates(space: Space, s: MemeticSettings, rng: np.random.Generator
         x, _ = _random_individual(space, rng)
         candidates.append((x, space.decode(z)))
     return candidates, 1
+
+
+def combinations_first(presets: list, starts: list) -> list:
+    """``presets`` (ranked, best first) reordered so that each discrete combination that neither the kept starts
+    nor an earlier preset has comes in with its best preset first, then the rest in their order. With a
+    population of 8 and 4 kept starts only 4 presets join; by their looks alone the teapot (handle, spout and
+    knob) was left out of the tune teapot's two-view population, behind three more handled jugs, and the search
+    ended without a spout at loss 0.072 (with it: 0.037)."""
+    seen = {tuple(sorted(d.items())) for _, d in starts}
+    first, rest = [], []
+    for x, d in presets:
+        key = tuple(sorted(d.items()))
+        (rest if key in seen else first).append((x, d))
+        seen.add(key)
+    return first + rest
 
 
 def _first_population(ev: Evaluator, space: Space, refine: Refine, s: MemeticSettings, candidates: list,
