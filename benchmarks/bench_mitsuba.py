@@ -20,6 +20,16 @@ measurement), then an untimed step of the same renderer (its own thread pool awa
 then the timed one. Threads: ``torch.set_num_threads`` for ipm, ``drjit.set_thread_count`` for Dr.Jit's pool.
 The sanity check compares Mitsuba's primal image (64 spp, coverage > 0.5) with ipm's exact hard mask
 (IoU). Mitsuba is an optional extra (``pip install mitsuba``): where it does not import, one row says so.
+
+A depth render too (issue #30), forward + backward w.r.t. the vertex positions of a fixed random weighting
+of the image, as a depth term of a fit pays it: ipm's deferred renderer's rasterizer and depth op
+(:func:`ipm.render.deferred.rasterize` and :func:`~ipm.render.deferred.depth`: the visible face per pixel
+centre and the perspective-correct interpolated view-axis depth; the default backend and the native one),
+and Mitsuba's differentiable ray casting of one ray per pixel centre (``sensor.sample_ray``,
+``scene.ray_intersect``, ``si.t`` times the ray's cosine to the view axis: the same view-axis depth, 0 where
+no surface), with ``params.update()`` as above. Both differentiate the depth inside the triangles only
+(neither has an edge term for depth); their depth images are compared (largest difference where both see
+the mesh).
 """
 
 from __future__ import annotations
@@ -89,6 +99,72 @@ def _mitsuba_step(scene, params, key, flat: np.ndarray, weight, seed: int) -> np
     return dr.grad(params[key]).numpy()
 
 
+def _mitsuba_depth_step(scene, params, key, flat: np.ndarray, weight) -> tuple:
+    """One forward + backward of Mitsuba's depth image (module docstring): (depth (H, W), gradient (V * 3,))."""
+    import drjit as dr
+    import mitsuba as mi
+
+    params[key] = mi.Float(flat)
+    dr.enable_grad(params[key])
+    params.update()
+    sensor = scene.sensors()[0]
+    w, h = sensor.film().size()
+    idx = dr.arange(mi.UInt32, w * h)
+    centre = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
+    ray, _ = sensor.sample_ray(0.0, 0.0, centre, mi.Point2f(0.5, 0.5))
+    si = scene.ray_intersect(ray)
+    forward = sensor.world_transform() @ mi.Vector3f(0.0, 0.0, 1.0)
+    z = dr.select(si.is_valid(), si.t * dr.dot(ray.d, forward), 0.0)
+    dr.backward(dr.sum(z * weight, axis=None))
+    return z.numpy().reshape(h, w), dr.grad(params[key]).numpy()
+
+
+def _depth_rows(scene, params, key, verts: torch.Tensor, faces: torch.Tensor, cam, gen: torch.Generator,
+                source: str) -> list[dict]:
+    """The depth render side by side (module docstring), for each thread count."""
+    import drjit as dr
+    import mitsuba as mi
+
+    from ipm.render.deferred import depth, rasterize
+
+    size = cam.width
+    weight_t = torch.rand(size, size, generator=gen)
+    weight_m = mi.Float(weight_t.numpy().ravel())
+    flat = verts.numpy().astype(np.float32).ravel()
+
+    def ipm_step(backend=None):
+        v = verts.clone().requires_grad_(True)
+        d = depth(v, faces, cam, rasterize(v, faces, cam, backend=backend))
+        (d * weight_t).sum().backward()
+        return d.detach()
+
+    seen = ipm_step().numpy()
+    z, _ = _mitsuba_depth_step(scene, params, key, flat, weight_m)
+    both = (seen > 0) & (z > 0)
+    diff = np.abs(seen[both] - z[both]) if both.any() else np.full(1, np.nan)
+    rows = []
+    for threads in THREADS:
+        torch.set_num_threads(threads)
+        dr.set_thread_count(threads)
+        for _ in range(WARMUP):
+            ipm_step(), ipm_step("native"), _mitsuba_depth_step(scene, params, key, flat, weight_m)
+        t_ipm, t_native, t_mi = [], [], []
+        for _ in range(REPEAT):
+            t_ipm.append(_steady(ipm_step))
+            t_native.append(_steady(lambda: ipm_step("native")))
+            t_mi.append(_steady(lambda: _mitsuba_depth_step(scene, params, key, flat, weight_m)))
+        m_ipm, m_nat, m_mi = (statistics.median(t) for t in (t_ipm, t_native, t_mi))
+        rows.append({"measure": f"depth {size}^2, {faces.shape[0]} faces ({source})", "threads": threads,
+                     "ipm ms": 1e3 * m_ipm, "best ipm ms": 1e3 * min(t_ipm),
+                     "Mitsuba ms": 1e3 * m_mi, "best Mitsuba ms": 1e3 * min(t_mi),
+                     "Mitsuba / ipm": m_mi / m_ipm, "best / best": min(t_mi) / min(t_ipm),
+                     "ipm native ms": 1e3 * m_nat, "Mitsuba / ipm native": m_mi / m_nat,
+                     "depth difference, max / median": f"{diff.max():.1e} / {np.median(diff):.1e}",
+                     "pixels": f"{int((seen > 0).sum())} / {int((z > 0).sum())}",
+                     "load": _loadavg()})
+    return rows
+
+
 def _steady(step) -> float:
     """Seconds of one call of ``step`` in its steady state: after a pause and an untimed call."""
     time.sleep(SETTLE)
@@ -121,11 +197,12 @@ def run(out_dir: Path) -> list[dict]:
     except Exception as e:  # not installed, or no LLVM for the CPU backend
         reason = f"{type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''}"
         rows = [{"measure": "Mitsuba 3 comparison skipped", "reason": reason}]
-        write_results(out_dir, "mitsuba", "Soft silhouette vs Mitsuba 3 (skipped)", rows,
-                      "Mitsuba 3 is an optional extra (`pip install mitsuba`); it did not import here.")
+        for name, what in (("mitsuba", "Soft silhouette"), ("mitsuba_depth", "Depth render")):
+            write_results(out_dir, name, f"{what} vs Mitsuba 3 (skipped)", rows,
+                          "Mitsuba 3 is an optional extra (`pip install mitsuba`); it did not import here.")
         return rows
 
-    rows = []
+    rows, depth_rows = [], []
     gen = torch.Generator().manual_seed(0)
     tmp = tempfile.TemporaryDirectory()
     try:
@@ -169,6 +246,8 @@ def run(out_dir: Path) -> list[dict]:
                 if size == 128:
                     row["target"], row["ok"] = f">= {TARGET:.0f}x", str(ratio >= TARGET)
                 rows.append(row)
+            if size == max(SIZES):
+                depth_rows.extend(_depth_rows(scene, params, key, verts, faces, cam, gen, source))
     finally:
         tmp.cleanup()
         torch.set_num_threads(threads_before)
@@ -185,4 +264,15 @@ def run(out_dir: Path) -> list[dict]:
              f"hard mask. Load average (1 min) before: {load_before}; 'load' is after each row.")
     write_results(out_dir, "mitsuba", "Soft silhouette (ipm) vs Mitsuba 3 (llvm_ad_rgb), forward + backward",
                   rows, notes)
+    write_results(out_dir, "mitsuba_depth", "Depth render (ipm) vs Mitsuba 3 ray casting (llvm_ad_rgb), forward + "
+                  "backward", depth_rows,
+                  f"ipm: ipm.render.deferred.rasterize + depth (view-axis depth at pixel centres, perspective-correct, "
+                  f"float32), default backend ('ipm') and backend='native' ('ipm native'); Mitsuba: {versions}, one "
+                  "ray per pixel centre through sensor.sample_ray and scene.ray_intersect, si.t times the ray's "
+                  "cosine to the view axis, params.update() included; both: forward + backward of sum(depth * "
+                  "fixed random weights) w.r.t. the vertex positions, no edge term. depth difference: the largest "
+                  "and the median difference of the two depth images where both see the mesh (scene units; the "
+                  "camera stands 3.2 from the centre); pixels: covered pixels, ipm / "
+                  f"Mitsuba. Timing as in mitsuba.md (median and best of {REPEAT}, alternating, steady state). "
+                  f"Load average (1 min) before: {load_before}; 'load' is after each row.")
     return rows
