@@ -26,8 +26,8 @@ of the image, as a depth term of a fit pays it: ipm's deferred renderer's raster
 (:func:`ipm.render.deferred.rasterize` and :func:`~ipm.render.deferred.depth`: the visible face per pixel
 centre and the perspective-correct interpolated view-axis depth; the default backend and the native one),
 and Mitsuba's differentiable ray casting of one ray per pixel centre (``sensor.sample_ray``,
-``scene.ray_intersect``, ``si.t`` times the ray's cosine to the view axis: the same view-axis depth, 0 where
-no surface), with ``params.update()`` as above. Both differentiate the depth inside the triangles only
+``scene.ray_intersect``, the hit's distance from the eye along the view axis: the same view-axis depth, 0
+where no surface), with ``params.update()`` as above. Both differentiate the depth inside the triangles only
 (neither has an edge term for depth); their depth images are compared (largest difference where both see
 the mesh).
 """
@@ -113,8 +113,11 @@ def _mitsuba_depth_step(scene, params, key, flat: np.ndarray, weight) -> tuple:
     centre = mi.Point2f((mi.Float(idx % w) + 0.5) / w, (mi.Float(idx // w) + 0.5) / h)
     ray, _ = sensor.sample_ray(0.0, 0.0, centre, mi.Point2f(0.5, 0.5))
     si = scene.ray_intersect(ray)
-    forward = sensor.world_transform() @ mi.Vector3f(0.0, 0.0, 1.0)
-    z = dr.select(si.is_valid(), si.t * dr.dot(ray.d, forward), 0.0)
+    to_world = sensor.world_transform()
+    forward = to_world @ mi.Vector3f(0.0, 0.0, 1.0)
+    eye = to_world @ mi.Point3f(0.0, 0.0, 0.0)
+    # the hit's distance from the eye along the view axis (the rays start on the near plane: si.t is from there)
+    z = dr.select(si.is_valid(), dr.dot(si.p - eye, forward), 0.0)
     dr.backward(dr.sum(z * weight, axis=None))
     return z.numpy().reshape(h, w), dr.grad(params[key]).numpy()
 
@@ -268,8 +271,8 @@ def run(out_dir: Path) -> list[dict]:
                   "backward", depth_rows,
                   f"ipm: ipm.render.deferred.rasterize + depth (view-axis depth at pixel centres, perspective-correct, "
                   f"float32), default backend ('ipm') and backend='native' ('ipm native'); Mitsuba: {versions}, one "
-                  "ray per pixel centre through sensor.sample_ray and scene.ray_intersect, si.t times the ray's "
-                  "cosine to the view axis, params.update() included; both: forward + backward of sum(depth * "
+                  "ray per pixel centre through sensor.sample_ray and scene.ray_intersect, the hit's distance from "
+                  "the eye along the view axis, params.update() included; both: forward + backward of sum(depth * "
                   "fixed random weights) w.r.t. the vertex positions, no edge term. depth difference: the largest "
                   "and the median difference of the two depth images where both see the mesh (scene units; the "
                   "camera stands 3.2 from the centre); pixels: covered pixels, ipm / "

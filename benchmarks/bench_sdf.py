@@ -1,5 +1,8 @@
 """Universal generator speed: SDF evaluation, gradient, full Jacobian and meshing of the classic CSG
-example (sphere ∩ box − three cylinders), float32, 2 threads."""
+example (sphere ∩ box − three cylinders), float32, 2 threads; beside it, where installed, the same solid in
+fogleman/sdf (https://github.com/fogleman/sdf, NumPy, float64: its own choice), evaluated on the same points (issue
+#30: every figure side by side in one run). fogleman/sdf is not on PyPI (the ``sdf`` package there is another
+project): ``pip install git+https://github.com/fogleman/sdf``; where it does not import, its row says so."""
 
 from __future__ import annotations
 
@@ -78,5 +81,24 @@ def run(out_dir: Path) -> list[dict]:
     rows.append({"measure": "meshing at 256^3 (narrow band + marching cubes)", "seconds": t_mesh,
                  "rate": f"{mesh.n_faces} faces, watertight={tm.is_watertight}", "ratio": "-",
                  "target": "<= 1.0 s, watertight", "ok": t_mesh <= 1.0 and tm.is_watertight})
+    rows.append(_fogleman_row(p6, t_fwd))
     write_results(out_dir, "sdf", "Universal generator: classic CSG example, float32", rows)
     return rows
+
+
+def _fogleman_row(points: torch.Tensor, t_tree: float) -> dict:
+    """fogleman/sdf's evaluation of the same solid at the same points (module docstring), checked against the
+    hand-written one."""
+    row = {"measure": "SDF eval, 1e6 points (fogleman/sdf)", "target": "-", "ok": "-"}
+    try:
+        import sdf as fsdf
+
+        a, b, c = (fsdf.capped_cylinder(-0.6 * axis, 0.6 * axis, 0.3) for axis in (fsdf.X, fsdf.Y, fsdf.Z))
+        f = (fsdf.sphere(0.65) & fsdf.box(1.0)) - (a | b | c)
+    except (ImportError, AttributeError) as e:
+        return {**row, "seconds": "-", "rate": "-", "ratio": f"skipped: {type(e).__name__}: {e}"}
+    p = points.double().numpy()
+    t = timeit(lambda: f(p), repeat=3)
+    err = float(abs(f(p[:10_000]).ravel() - hand_written(points[:10_000].double()).numpy()).max())
+    return {**row, "seconds": t, "rate": f"{1e6 / t / 1e6:.2f} M points/s",
+            "ratio": f"{t / t_tree:.1f}x of tree (values within {err:.1e} of the hand-written solid)"}
