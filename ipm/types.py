@@ -189,7 +189,8 @@ class FitResult:
     scores: dict = field(default_factory=dict)
     run_dir: str | None = None
     # discrete parameters the fit set back to the preset's value because the input could not tell the
-    # values apart (a handle hidden behind the body: ipm.optim.fit.break_ties)
+    # values apart (a handle hidden behind the body: ipm.optim.fit.break_ties), then the parts (named as
+    # Param.adds names them: "handle") whose own parameters it set back to the preset's for the same reason
     tied: tuple[str, ...] = ()
     # the pose as JSON with the turns that map the fitted shape onto itself and the equivalent poses
     # (ipm.optim.problem.Problem.pose_json with symmetry)

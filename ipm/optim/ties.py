@@ -123,8 +123,8 @@ def owned_parameters(prob: Problem, x: torch.Tensor, d: dict) -> dict[str, list[
         return {}
     V = mesh.n_verts
     moving = gen.jacobian(theta, d).reshape(V, 3, -1).abs().sum(1)[:, list(prob.layout.free)] > 0   # (V, n)
-    vgroup = torch.full((V,), -1, dtype=torch.long)
-    vgroup[mesh.faces.reshape(-1)] = mesh.groups.repeat_interleave(3)
+    vgroup = torch.full((V,), -1, dtype=torch.long, device=mesh.faces.device)
+    vgroup[mesh.faces.reshape(-1)] = mesh.groups.to(mesh.faces.device).repeat_interleave(3)
     out = {}
     for part in parts:
         mine = vgroup == mesh.group_names.index(part)

@@ -108,7 +108,7 @@ def combinations_first(presets: list, starts: list) -> list:
     nor an earlier preset has comes in with its best preset first, then the rest in their order. With a
     population of 8 and 4 kept starts only 4 presets join; by their looks alone the teapot (handle, spout and
     knob) was left out of the tune teapot's two-view population, behind three more handled jugs, and the search
-    ended without a spout at loss 0.072 (with it: 0.037)."""
+    ended without a spout at loss 0.072 (with it first: 0.027, held-out IoU 0.882 -> 0.948)."""
     seen = {tuple(sorted(d.items())) for _, d in starts}
     first, rest = [], []
     for x, d in presets:
