@@ -74,12 +74,9 @@ def break_ties(prob: Problem, ev: Evaluator, winner: Best) -> tuple[torch.Tensor
         cand = {**d, name: prob.d0[name]}
         ev.phase = f"ties:{name}"
         xc = prob.repose(winner.x, winner.discrete, cand)
-        try:
-            lc, _ = ev(xc, cand, grad=False)
-        except BudgetExhausted:
+        if (got := _look(ev, xc, cand, ref, cues, allowed)) is None:
             break
-        moved = _moved(ev, ref, cues)
-        same = all(m <= a for m, a in zip(moved, allowed))
+        lc, moved, same = got
         log.info("tie rule: %s=%s -> %s: loss %.6g -> %.6g, silhouettes moved by %s px (%s)", name, d[name],
                  cand[name], loss, lc, moved, "a tie" if same else "no tie")
         if same:
@@ -91,12 +88,9 @@ def break_ties(prob: Problem, ev: Evaluator, winner: Best) -> tuple[torch.Tensor
         if torch.equal(xc, x):
             continue
         ev.phase = f"ties:{part}"
-        try:
-            lc, _ = ev(xc, d, grad=False)
-        except BudgetExhausted:
+        if (got := _look(ev, xc, d, ref, cues, allowed)) is None:
             break
-        moved = _moved(ev, ref, cues)
-        same = all(m <= a for m, a in zip(moved, allowed))
+        lc, moved, same = got
         log.info("tie rule: the %s's own parameters -> the preset's: loss %.6g -> %.6g, silhouettes moved by %s "
                  "px (%s)", part, loss, lc, moved, "a tie" if same else "no tie")
         if same:
@@ -132,6 +126,17 @@ def owned_parameters(prob: Problem, x: torch.Tensor, d: dict) -> dict[str, list[
         if bool(own.any()):
             out[part] = torch.nonzero(own).flatten().tolist()
     return out
+
+
+def _look(ev: Evaluator, x: torch.Tensor, d: dict, ref: list, cues: dict, allowed: list[float]):
+    """One evaluation of ``(x, d)`` against the winner's pixels: (loss, pixels moved per view, whether no view
+    moved by more than it is ``allowed``), or None when the budget is spent."""
+    try:
+        loss, _ = ev(x, d, grad=False)
+    except BudgetExhausted:
+        return None
+    moved = _moved(ev, ref, cues)
+    return loss, moved, all(m <= a for m, a in zip(moved, allowed))
 
 
 def _moved(ev: Evaluator, ref: list, cues: dict) -> list[float]:
