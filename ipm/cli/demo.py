@@ -68,8 +68,7 @@ def register(app: typer.Typer) -> None:
         for init, r in S.learned_start(out).items():
             counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
             print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
-        print("a spout tube and a lid knob (#34): a real teapot from one view, both searched and each held off ...",
-              flush=True)
+        print("spout tube and lid knob (#34): a real teapot from one view, both searched, each held off", flush=True)
         for name, r in S.teapot_spout(out).items():
             print(f"  {name:15s} held-out IoU {r['heldout_iou']:.3f} (has_spout {r['has_spout']}, has_knob "
                   f"{r['has_knob']}) in {r['wall_time_s']} s")
