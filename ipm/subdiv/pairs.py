@@ -8,7 +8,7 @@ Loop topology insert sits at a vertex of the finer body: the one halfway between
 loft's (ring, angle) grid. So the ground truth of every level is read off the generator itself, with no
 projection (Liu et al. 2020 had to build such maps with edge collapses and conformal flattening).
 
-Every part a discrete switch adds (:func:`body_only`: the handle, the spout tube) is left out: their end caps
+Every part a discrete switch adds (:func:`body_only`: the handle, the spout tube, the knob) is left out: their end caps
 are fans around poles that are not on their sweeps' grids, so the inserted vertices of the caps have no exact
 counterpart.
 """
