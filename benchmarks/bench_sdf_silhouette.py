@@ -7,13 +7,17 @@ silhouettes through the differentiable iso-surface mesh (``sdf_silhouette="mesh"
 :mod:`ipm.render.sdf_silhouette`), and the ``dishes`` mesh generator's fit to the same mask
 (``ipm fit dishes --preset mug --masks M --discrete none --budget 300``). Masks, one view at 128^2:
 ``ipm render ../shared/data/real/vessels/ocrtoc_mug.ply --up z --views 1 --size 128`` (the README's example
-scan) and ``ipm render mug --views 1 --size 128`` (the preset itself). Each fit runs ``REPEATS`` times, the
+scan), four more real mugs and cups of ``../shared/data/real`` rendered the same way (up axes as
+``experiments/table1.toml`` reads them), and ``ipm render mug --views 1 --size 128`` (the preset itself).
+Each fit runs ``REPEATS`` times, the
 cases interleaved; the table gives medians, and the median of each repeat's ratio of a case's rate to the dishes
 fit's next to it (the load of a shared machine changes from minute to minute). "evals/s" counts the fit's
 evaluations over the time of its last one (the trajectory's ``t``: the search and polish), "evals/s, whole
 call" over the whole ``ipm.fit`` call (reading the masks, writing the run folder: meshes at resolution 128,
 overlays, the loss plot). Final IoU: the exact mask IoU of the result (marching cubes at 128 for the SDF tree,
-the hard rasterizer) against the target mask.
+the hard rasterizer) against the target mask. The last rows compare the two silhouettes of the tree fit over
+the targets: the mean final IoU of each and of the difference (iso-surface mesh less sphere tracing), over the
+real scans and over all targets.
 """
 
 from __future__ import annotations
@@ -30,7 +34,12 @@ from benchmarks.bench_render import _loadavg
 from benchmarks.common import write_results
 
 ROOT = Path(__file__).resolve().parents[1]
-SCAN = (ROOT / ".." / "shared" / "data" / "real" / "vessels" / "ocrtoc_mug.ply").resolve()
+VESSELS = (ROOT / ".." / "shared" / "data" / "real" / "vessels").resolve()
+SCAN = VESSELS / "ocrtoc_mug.ply"
+# the README's scan first, then the other real mugs and cups: (label, file, up axis)
+SCANS = (("real mug scan (README)", "ocrtoc_mug.ply", "z"), ("real mug (probcomp)", "probcomp_mug.obj", "z"),
+         ("real mug (low-poly)", "bullet_mug.obj", "z"), ("real cup (dinnerware)", "bullet_dinnerware_cup.obj", "z"),
+         ("real tea-set cup", "polyhaven_teaset_cup_small.obj", "y"))
 REPEATS = 3
 BUDGET = 300
 COMMAND = "IPM_THREADS=1 python -m benchmarks.bench_sdf_silhouette"
@@ -66,6 +75,27 @@ def _fit(gen: str, masks: Path, run: Path, settings: dict) -> dict:
             "iou": res.scores["iou_mean"]}
 
 
+def _summary(rows: list[dict]) -> list[dict]:
+    """Rows of the mean final IoU of the tree fit's two silhouettes and of their difference per target (mesh less
+    trace), over the real scans and over every target."""
+    mesh, trace = (next(iter(CASES)), list(CASES)[1])
+    iou = {(r["target"], r["case"]): r["final IoU (median)"] for r in rows}
+    groups = {"mean over the real scans": [t for t, c in iou if c == mesh and t.startswith("real")],
+              "mean over every target": [t for t, c in iou if c == mesh]}
+    out = []
+    for label, ts in groups.items():
+        if not ts:
+            continue
+        m = statistics.mean(iou[t, mesh] for t in ts)
+        tr = statistics.mean(iou[t, trace] for t in ts)
+        worst = min(iou[t, mesh] - iou[t, trace] for t in ts)
+        out.append({"target": f"{label} ({len(ts)})", "case": "mesh less trace", "evaluations": "",
+                    "evals/s (median)": "", "evals/s each": "", "rate / dishes' (median)": "",
+                    "evals/s, whole call": "", "final IoU (median)": round(m - tr, 4),
+                    "final IoU each": f"mesh {m:.4f}, trace {tr:.4f}, least {worst:+.4f}"})
+    return out
+
+
 def run(out_dir: Path) -> list[dict]:
     """Write ``sdf_silhouette.md`` / ``.json`` under ``out_dir``; returns the rows."""
     torch.set_num_threads(1)
@@ -73,9 +103,9 @@ def run(out_dir: Path) -> list[dict]:
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        targets = {"mug preset, 1 view": _render(["mug"], tmp / "preset")}
-        if SCAN.is_file():
-            targets = {"real mug scan (README), 1 view": _render([str(SCAN), "--up", "z"], tmp / "scan"), **targets}
+        targets = {f"{label}, 1 view": _render([str(VESSELS / name), "--up", up], tmp / f"scan{i}")
+                   for i, (label, name, up) in enumerate(SCANS) if (VESSELS / name).is_file()}
+        targets["mug preset, 1 view"] = _render(["mug"], tmp / "preset")
         for target, masks in targets.items():
             runs: dict[str, list[dict]] = {name: [] for name in CASES}
             for rep in range(REPEATS):
@@ -91,6 +121,7 @@ def run(out_dir: Path) -> list[dict]:
                              "evals/s, whole call": round(statistics.median(r["call"] for r in rs), 1),
                              "final IoU (median)": round(statistics.median(r["iou"] for r in rs), 4),
                              "final IoU each": " / ".join(f"{r['iou']:.4f}" for r in rs)})
+    rows += _summary(rows)
     notes = (__doc__.split("\n\n", 1)[1].strip() + f"\n\nCommand: `{COMMAND}` (torch threads: "
              f"{torch.get_num_threads()}). Load average (1 min) before / after: {load_before} / {_loadavg()} "
              "(a shared 2-core machine: the rates of one run are comparable with each other, less so with "
