@@ -5,6 +5,9 @@
    parameters' mean absolute error beside guessing their mean, the yaw within one bin beside chance.
 2. ``results/table_proposals`` (the network's guess alone, scored as a K = 1 cell) and ``results/table_init``
    (K = 1 fits started from the presets, the proposals or both), summarized per generator and per target.
+3. The pace of those fits: the evaluations each needed to first come within 0.01 of its final mask IoU on the
+   input view (the rows' ``evals_to_final``, :func:`ipm.bench.methods.ipm.evaluations_to_final`), per target
+   the median over the seeds, and the median over the targets of the presets' count over each start's.
 
 ``python -m benchmarks.proposal_report`` (about two minutes; run ``make table-proposals table-init`` first).
 """
@@ -73,6 +76,30 @@ def _tables() -> list[str]:
     if by:
         lines.append("| mean | " + " | ".join(f"{statistics.mean(statistics.mean(by[t][k]) for t in by):.3f}"
                                              for k in methods) + " |")
+    return lines + _pace(methods)
+
+
+def _pace(methods: list[str]) -> list[str]:
+    """Section 3 of the module docstring (empty where the rows predate ``evals_to_final``)."""
+    by = collections.defaultdict(lambda: collections.defaultdict(list))
+    for r in _rows("table_init"):
+        if r.get("evals_to_final") is not None:
+            by[r["target"]][r["method"]].append(r["evals_to_final"])
+    by = {t: m for t, m in by.items() if all(m[k] for k in methods)}
+    if not by:
+        return []
+    med = {t: {k: statistics.median(m[k]) for k in methods} for t, m in by.items()}
+    lines = ["", "## How soon a K = 1 fit lands (results/table_init)", "",
+             "Evaluations until the fit first comes within 0.01 of its final mask IoU on the input view (median of "
+             "seeds 0, 1, 2; the budget is 500).", "",
+             "| target | " + " | ".join(methods) + " |", "|---" * (len(methods) + 1) + "|"]
+    for t, m in med.items():
+        lines.append(f"| {t} | " + " | ".join(f"{m[k]:g}" for k in methods) + " |")
+    lines.append("| median | " + " | ".join(f"{statistics.median(m[k] for m in med.values()):g}"
+                                             for k in methods) + " |")
+    for k in methods[1:]:
+        ratio = statistics.median(m[methods[0]] / m[k] for m in med.values())
+        lines.append(f"\nMedian over the {len(med)} targets of {methods[0]}'s count over {k}'s: {ratio:.2f}x.")
     return lines
 
 

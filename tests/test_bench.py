@@ -50,6 +50,7 @@ def test_small_experiment_end_to_end_and_resume(tmp_path, capsys):
     assert len(vh) == 2 and all(0.3 < r["heldout_iou"] <= 1.0 for r in vh)
     fit = next(r for r in rows if r["method"] == "ipm-dishes")
     assert fit["evaluations"] == 60 and 0.5 < fit["heldout_iou"] <= 1.0 and "params" not in fit
+    assert 1 <= fit["evals_to_final"] <= 60  # the fit's pace (ipm.bench.methods.ipm.evaluations_to_final)
     for name in ("table.md", "table.csv", "table.tex", "README.md", "sheet_cup_1.png"):
         assert (out / name).is_file()
     assert len(list((out / "meshes").glob("*.ply"))) == 3

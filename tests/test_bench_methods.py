@@ -81,3 +81,23 @@ def test_a_method_in_another_package_is_found_and_runs_in_the_harness(tmp_path, 
                        '[[methods]]\nname = "box"\nmethod = "throwaway-box"\nhalf = 0.4\n')
         row = harness.run_cell(str(exp.resolve()), load_experiment(exp).cells()[0])
         assert row["status"] == "ok" and row["method"] == "box" and 0.0 < row["heldout_iou"] < 1.0, row
+
+
+def test_evaluations_to_final_counts_up_to_the_first_record_near_the_final_iou():
+    """The first evaluation whose mean input-view IoU is within 0.01 of the final point's, counted from 1; the final
+    point is found by its exact values (the last record at it), whatever its place in the run."""
+    import torch
+
+    from ipm.bench.methods.ipm import evaluations_to_final
+
+    def rec(i, x, iou, d=1):
+        return {"i": i, "x": [float(v) for v in x], "discrete": {"n": d}, "iou": iou}
+
+    final = torch.tensor([0.25, 0.5], dtype=torch.float64)
+    records = [rec(0, [0.0, 0.0], [0.50, 0.70]), rec(1, [0.1, 0.0], [0.90, 0.95]),  # mean 0.925: not yet
+               rec(2, [0.2, 0.0], [0.93, 0.94]),  # 0.935: within 0.01 of 0.94
+               rec(3, [0.25, 0.5], [0.94, 0.94]), rec(4, [0.3, 0.0], [0.20, 0.20])]
+    assert evaluations_to_final(records, final, {"n": 1}) == 3
+    assert evaluations_to_final(records, final, {"n": 1}, near=0.0) == 4
+    assert evaluations_to_final(records, final, {"n": 2}) is None  # not a point of the run
+    assert evaluations_to_final([{**r, "iou": []} for r in records], final, {"n": 1}) is None

@@ -232,7 +232,7 @@ def _run_cell(exp_path: str, cell: Cell, out_dir: str | None) -> dict:
                      normalize=False)
     row.update(s.to_json())
     row.update(status="ok", evaluations=pred.evaluations, wall_time_s=round(pred.wall_time_s, 3))
-    for key in ("discrete", "loss"):  # a generator fit's discrete values and final loss
+    for key in ("discrete", "loss", "evals_to_final"):  # a generator fit's discrete values, final loss and pace
         if key in pred.info:
             row[key] = pred.info[key]
     if target.truth is not None:
@@ -262,6 +262,7 @@ class Row(msgspec.Struct, rename={"fscore_002": "fscore@0.02", "fscore_005": "fs
     align_scale: float | None = None
     wall_time_s: float | None = None
     evaluations: int | None = None
+    evals_to_final: int | None = None
     cues: list[str] | None = None
     error: str | None = None
 

@@ -10,6 +10,10 @@ weights ``depth_weight`` and ``parts_weight`` among them.
 
 The cues the task carries go into the fit's :class:`~ipm.optim.targets.MaskTarget` (reduced with the
 masks under ``max_size``: :func:`ipm.bench.views.fit_cues`).
+
+Besides the mesh, a row gets the fit's discrete values, its final loss and ``evals_to_final``: the evaluations
+the fit needed to first come within :data:`NEAR_FINAL` of its final mask IoU on the input views
+(:func:`evaluations_to_final`; how soon a start lands, issue #29).
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ from ipm.types import TriMesh
 
 NAME = "ipm"
 MAX_SIZE = (8, 4096)
+NEAR_FINAL = 0.01  # of mask IoU (evaluations_to_final)
 
 
 @dataclass(frozen=True)
@@ -98,7 +103,24 @@ def ipm_fit(task: Task, s: IpmSettings, budget: int, seed: int) -> Prediction:
     depth, parts = fit_cues(task.depth, task.parts, size, torch.float32)
     target = MaskTarget(masks, cams, depth=depth, parts=parts, part_names=task.part_names if parts is not None else ())
     t0 = time.perf_counter()
-    res, prob, best = run_fit(s.generator, target, FitSettings(budget=budget, seed=seed, **s.fit))
+    records: list[dict] = []
+    res, prob, best = run_fit(s.generator, target, FitSettings(budget=budget, seed=seed, **s.fit), sink=records.append)
     mesh = prob.mesh_world(best["x"].to(torch.float64), best["discrete"]).detach()
     return Prediction(TriMesh(mesh.verts.double(), mesh.faces), res.evaluations, time.perf_counter() - t0,
-                      {"params": res.params, "discrete": best["discrete"], "loss": res.loss})
+                      {"params": res.params, "discrete": best["discrete"], "loss": res.loss,
+                       "evals_to_final": evaluations_to_final(records, best["x"], best["discrete"])})
+
+
+def evaluations_to_final(records: list[dict], x: torch.Tensor, discrete: dict, near: float = NEAR_FINAL
+                         ) -> int | None:
+    """How many evaluations a fit took to first reach a mask IoU (the mean over the input views, as each record's
+    ``iou`` gives it) within ``near`` of the final point's. records: the fit's evaluation records in order (the
+    evaluator's sink); x (m,), discrete: the final point, which is one of them (the last record at it gives
+    the final IoU). None where the records carry no IoU or do not hold the final point."""
+    xs = [float(v) for v in x.detach().to(torch.float64).tolist()]
+    d = {k: int(v) for k, v in discrete.items()}
+    final = [r for r in records if r.get("iou") and r["x"] == xs and r["discrete"] == d]
+    if not final:
+        return None
+    goal = sum(final[-1]["iou"]) / len(final[-1]["iou"]) - near
+    return next(r["i"] + 1 for r in records if r.get("iou") and sum(r["iou"]) / len(r["iou"]) >= goal)
