@@ -21,22 +21,23 @@ HEAD = '''# Learned proposals on held-out generator samples (issue #29). Written
 # `python -m benchmarks.proposal_targets {n}`: {n} samples of each generator drawn by the proposal networks'
 # own training sampler (presets mixed, values moved; ipm.proposals.data.sample_values) from the held-out
 # seed's stream, which no training run draws.
-# `proposal` is the network's most probable guess from the one input view, posed by one look (areas and
-# centroids) and not refined; it has no budget. Scored as every table (protocol v2, K = 1 scaled about the eye),
-# at 128 px in and out with 4000 surface samples to keep {total} cells affordable. Run with `make
-# table-proposals` (results/table_proposals/).
+# `proposal` is the network's most probable guess from the one input view, posed by three looks in a row
+# (areas and centroids: the budget of 6 is two evaluations a look) and not refined. Scored as every table
+# (protocol v2, K = 1 scaled about the eye), at 128 px in and out with 4000 surface samples to keep {total}
+# cells affordable. Run with `make table-proposals` (results/table_proposals/).
 name = "table_proposals"
 views = [1]
 seeds = [0]
-budget = 2
+budget = 6
 size = 128
 heldout_size = 128
 samples = 4000
 iou_resolution = 48
 notes = """
 Held-out generator samples the proposal networks never saw; `proposal` is the network's best guess with no
-refinement (two evaluations to set its scale and place). Discrete accuracy: share of the discrete parameters
-recovered exactly; parameter error: mean |error| of the continuous parameters in normalized [0, 1] units.
+refinement (three looks, six evaluations, to set its scale and place). Discrete accuracy: share of the discrete
+parameters recovered exactly; parameter error: mean |error| of the continuous parameters in normalized [0, 1]
+units.
 """
 '''
 

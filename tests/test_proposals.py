@@ -203,9 +203,10 @@ def test_shipped_networks_beat_chance_on_held_out_samples(name):
     assert yaw_bin(360.0) == yaw_bin(0.0) == 0 and math.isfinite(scores["continuous_mae"])
 
 
-def test_the_proposal_bench_method_poses_the_guess_with_two_evaluations():
-    """The ``proposal`` baseline with the shipped dishes network: its best guess, scaled and placed by one look,
-    not refined, lies on the input mask of the mug."""
+def test_the_proposal_bench_method_poses_the_guess_with_its_budget_in_looks():
+    """The ``proposal`` baseline with the shipped dishes network: its best guess, scaled and placed by one look
+    (budget 2), not refined, lies on the input mask of the mug; with budget 6, three looks in a row place the same
+    guess at least as well, its parameters unchanged."""
     from ipm.bench.methods import METHODS, Task
     from ipm.metrics import unit_sphere_frame
     from ipm.render.camera import input_views
@@ -222,6 +223,10 @@ def test_the_proposal_bench_method_poses_the_guess_with_two_evaluations():
     assert pred.evaluations == 2 and pred.info["discrete"] == {"has_handle": 1, "has_spout": 0, "has_knob": 0}
     seen = rasterize(pred.mesh.verts, pred.mesh.faces, cams[0]).mask
     assert _iou(seen.float(), masks[0]) > 0.75
+    three = METHODS["proposal"](Task(masks, cams), settings, 6, 0)
+    assert three.evaluations == 6 and three.info["params"] == pred.info["params"]
+    seen3 = rasterize(three.mesh.verts, three.mesh.faces, cams[0]).mask
+    assert _iou(seen3.float(), masks[0]) >= _iou(seen.float(), masks[0]) - 1e-6
 
 
 def test_damaged_weights_and_checkpoints_are_bad_input(tmp_path):

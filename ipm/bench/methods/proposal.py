@@ -2,9 +2,11 @@
 
 The network (:mod:`ipm.proposals`: the weights shipped for ``generator``, or ``weights``) reads the first input
 mask; its most probable proposal is posed at its own yaw, with the scale and translation that match its
-silhouettes' areas and centroids to the masks' (two evaluations: :func:`ipm.optim.pose.looks`), and nothing
-else: no gradient step, no search. What the table shows beside ``ipm`` is how much of a fit the first guess
-already is.
+silhouettes' areas and centroids to the masks' (:func:`ipm.optim.pose.looks`, two evaluations; the cell's
+budget allows ``budget // 2`` looks in a row, each from where the last left the guess: one look leaves the
+shape off by the perspective it was first seen at, results/proposal_ablation.md), and nothing else: no
+parameter of the guess changes, no gradient step, no search. What the table shows beside ``ipm`` is how much of
+a fit the first guess already is.
 
 Settings: ``generator`` (required), ``weights`` (a weights file; default the shipped ones), ``max_size`` (as the
 ``ipm`` method's).
@@ -49,11 +51,12 @@ def proposal(task: Task, s: ProposalSettings, budget: int, seed: int) -> Predict
     props = proposer.propose(masks[0], cams[0], k=1)
     if not props:
         raise MethodFailed("proposal: the network proposed nothing")
-    prob = Problem(gen, MaskTarget(masks, cams), FitSettings(budget=2, seed=seed, init="presets"))
-    ev = Evaluator(prob.objective, 2)
-    entry = proposed(prob, props, prob.x0())[0]
-    _, _, x = looks(prob, ev, [entry])[0]
-    mesh = prob.mesh_world(x.to(torch.float64), entry[1]).detach()
+    rounds = max(1, budget // 2)
+    prob = Problem(gen, MaskTarget(masks, cams), FitSettings(budget=2 * rounds, seed=seed, init="presets"))
+    ev = Evaluator(prob.objective, 2 * rounds)
+    x, d = proposed(prob, props, prob.x0())[0]
+    for _ in range(rounds):
+        _, _, x = looks(prob, ev, [(x, d)])[0]
+    mesh = prob.mesh_world(x.to(torch.float64), d).detach()
     return Prediction(TriMesh(mesh.verts.double(), mesh.faces), ev.count, time.perf_counter() - t0,
-                      {"params": prob.values(x, entry[1]), "discrete": entry[1],
-                       "probability": round(props[0].probability, 4)})
+                      {"params": prob.values(x, d), "discrete": d, "probability": round(props[0].probability, 4)})
