@@ -1,10 +1,10 @@
 """What keeps the proposal alone below issue #29's bars: the guess with one of its parts replaced by the truth.
 
-On the first ``N`` held-out generator samples of each generator in ``experiments/table_proposals.toml`` (never in
-training), scored as that table scores its ``proposal`` cells (K = 1 at 128 px, the prediction rescaled about the
-input camera by ``align_scale``, held-out IoU over the protocol's held-out views), five variants of the network's
-most probable proposal, each posed by the bench method's one look (:func:`ipm.optim.pose.looks`: scale and
-translation from the masks' areas and centroids), and by three looks in a row, each starting where the last one
+On the first :data:`N` (25) held-out generator samples of each generator in ``experiments/table_proposals.toml``
+(never in training), scored as that table scores its ``proposal`` cells (K = 1 at 128 px, the prediction rescaled
+about the input camera by ``align_scale``, held-out IoU over the protocol's held-out views), five variants of the
+network's most probable proposal, each posed by the bench method's one look (:func:`ipm.optim.pose.looks`: scale
+and translation from the masks' areas and centroids), and by three looks in a row, each starting where the last one
 left the guess:
 
 - ``guess``: the proposal as the ``proposal`` bench method takes it;
@@ -105,7 +105,7 @@ def main() -> int:
 
     lines = ["# The proposal alone, one part at a time replaced by the truth (issue #29)", "",
              f"Machine: {machine()}, one torch thread  ", "Command: `python -m benchmarks.proposal_ablation`", "",
-             __doc__.split("\n\n", 2)[1].strip(), ""]
+             "\n\n".join(__doc__.split("\n\n")[1:3]).strip(), ""]
     for rounds in ROUNDS:
         lines += [f"Held-out IoU, mean (median), posed by {rounds} look{'s' if rounds > 1 else ''}:", "",
                   *run(N, rounds), ""]
