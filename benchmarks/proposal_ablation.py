@@ -3,11 +3,11 @@
 On the first :data:`N` (25) held-out generator samples of each generator in ``experiments/table_proposals.toml``
 (never in training), scored as that table scores its ``proposal`` cells (K = 1 at 128 px, the prediction rescaled
 about the input camera by ``align_scale``, held-out IoU over the protocol's held-out views), five variants of the
-network's most probable proposal, each posed by the bench method's one look (:func:`ipm.optim.pose.looks`: scale
-and translation from the masks' areas and centroids), and by three looks in a row, each starting where the last one
-left the guess:
+network's most probable proposal, each posed by one look (:func:`ipm.optim.pose.looks`: scale and translation
+from the masks' areas and centroids; what the ``proposal`` bench method did before 10642c2) and by three looks in a
+row (:func:`ipm.optim.pose.placed`, as the method does now at table_proposals' budget of 6):
 
-- ``guess``: the proposal as the ``proposal`` bench method takes it;
+- ``guess``: the network's proposal as it is;
 - ``true discrete``: its discrete values replaced by the sample's;
 - ``true yaw``: its yaw replaced by the sample's (0: the targets are the generator's meshes as it makes them);
 - ``true continuous``: its continuous parameters replaced by the sample's;
@@ -29,7 +29,7 @@ import torch
 ROOT = Path(__file__).resolve().parents[1]
 EXPERIMENT = ROOT / "experiments" / "table_proposals.toml"
 N = 25
-ROUNDS = (1, 3)  # looks in a row (the bench's proposal method takes one)
+ROUNDS = (1, 3)  # looks in a row
 VARIANTS = ("guess", "true discrete", "true yaw", "true continuous", "truth")
 
 
@@ -55,7 +55,7 @@ def _score(exp_path: str, exp, name: str, proposer, gen, rounds: int) -> dict[st
     from ipm.metrics import mask_iou
     from ipm.optim.evaluator import Evaluator
     from ipm.optim.fit import FitSettings, MaskTarget, Problem
-    from ipm.optim.pose import looks, proposed
+    from ipm.optim.pose import placed, proposed
     from ipm.types import TriMesh
 
     target = load_target(exp_path, name)
@@ -68,8 +68,7 @@ def _score(exp_path: str, exp, name: str, proposer, gen, rounds: int) -> dict[st
         prob = Problem(gen, MaskTarget(masks, cams_f), FitSettings(budget=2 * rounds, seed=0, init="presets"))
         ev = Evaluator(prob.objective, 2 * rounds)
         x, d = proposed(prob, [_variant(v, guess, target.truth, gen)], prob.x0())[0]
-        for _ in range(rounds):
-            _, _, x = looks(prob, ev, [(x, d)])[0]
+        x = placed(prob, ev, x, d, rounds)
         mesh = prob.mesh_world(x.to(torch.float64), d).detach()
         mesh = TriMesh(mesh.verts.double(), mesh.faces)
         mesh = scale_about(mesh, cams[0].eye, align_scale(mesh, target.mesh, cams[0].eye, seed=0).scale)
@@ -103,8 +102,9 @@ def main() -> int:
     from benchmarks.common import machine
     from ipm.files import write_text
 
+    torch.set_num_threads(1)  # before machine(), which names the thread count
     lines = ["# The proposal alone, one part at a time replaced by the truth (issue #29)", "",
-             f"Machine: {machine()}, one torch thread  ", "Command: `python -m benchmarks.proposal_ablation`", "",
+             f"Machine: {machine()}  ", "Command: `python -m benchmarks.proposal_ablation`", "",
              "\n\n".join(__doc__.split("\n\n")[1:3]).strip(), ""]
     for rounds in ROUNDS:
         lines += [f"Held-out IoU, mean (median), posed by {rounds} look{'s' if rounds > 1 else ''}:", "",

@@ -95,6 +95,15 @@ def rank_presets(prob: Problem, ev: Evaluator, presets: list[tuple[torch.Tensor,
     return [(x, presets[i][1]) for _, i, x in sorted(scored, key=lambda e: (e[0], e[1]))]
 
 
+def placed(prob: Problem, ev: Evaluator, x: torch.Tensor, d: dict, rounds: int = 1) -> torch.Tensor:
+    """``x (m,)`` (discrete values ``d``) scaled and moved by ``rounds`` :func:`looks` in a row, each from where the
+    last left it (one look places a shape by how it looked where it stood, so a shape first seen far off stays off:
+    results/proposal_ablation.md); its parameters unchanged. Two evaluations a round."""
+    for _ in range(rounds):
+        _, _, x = looks(prob, ev, [(x, d)])[0]
+    return x
+
+
 def looks(prob: Problem, ev: Evaluator, entries: list[tuple[torch.Tensor, dict]], labels: list[str] | None = None
           ) -> list[tuple[float, int, torch.Tensor]]:
     """One cheap look at each of ``entries`` (x, discrete): its loss where it stands, and, rescaled and moved so

@@ -2,11 +2,11 @@
 
 The network (:mod:`ipm.proposals`: the weights shipped for ``generator``, or ``weights``) reads the first input
 mask; its most probable proposal is posed at its own yaw, with the scale and translation that match its
-silhouettes' areas and centroids to the masks' (:func:`ipm.optim.pose.looks`, two evaluations; the cell's
-budget allows ``budget // 2`` looks in a row, each from where the last left the guess: one look leaves the
-shape off by the perspective it was first seen at, results/proposal_ablation.md), and nothing else: no
-parameter of the guess changes, no gradient step, no search. What the table shows beside ``ipm`` is how much of
-a fit the first guess already is.
+silhouettes' areas and centroids to the masks' (:func:`ipm.optim.pose.looks`, two evaluations; the cell's budget
+allows ``budget // 2`` looks in a row, :func:`ipm.optim.pose.placed`, each from where the last left the guess:
+one look leaves the shape off by the perspective it was first seen at, results/proposal_ablation.md), and nothing
+else: no parameter of the guess changes, no gradient step, no search. What the table shows beside ``ipm`` is how
+much of a fit the first guess already is.
 
 Settings: ``generator`` (required), ``weights`` (a weights file; default the shipped ones), ``max_size`` (as the
 ``ipm`` method's).
@@ -38,7 +38,7 @@ def proposal(task: Task, s: ProposalSettings, budget: int, seed: int) -> Predict
     from ipm.generators import get_generator
     from ipm.optim.evaluator import Evaluator
     from ipm.optim.fit import FitSettings, MaskTarget, Problem
-    from ipm.optim.pose import looks, proposed
+    from ipm.optim.pose import placed, proposed
     from ipm.proposals import load_proposer
 
     gen = get_generator(s.generator)
@@ -55,8 +55,7 @@ def proposal(task: Task, s: ProposalSettings, budget: int, seed: int) -> Predict
     prob = Problem(gen, MaskTarget(masks, cams), FitSettings(budget=2 * rounds, seed=seed, init="presets"))
     ev = Evaluator(prob.objective, 2 * rounds)
     x, d = proposed(prob, props, prob.x0())[0]
-    for _ in range(rounds):
-        _, _, x = looks(prob, ev, [(x, d)])[0]
+    x = placed(prob, ev, x, d, rounds)
     mesh = prob.mesh_world(x.to(torch.float64), d).detach()
     return Prediction(TriMesh(mesh.verts.double(), mesh.faces), ev.count, time.perf_counter() - t0,
                       {"params": prob.values(x, d), "discrete": d, "probability": round(props[0].probability, 4)})
