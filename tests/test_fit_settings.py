@@ -40,6 +40,7 @@ BAD = {
     "parts_weight": ("parts_weight", [-0.5, NAN, None]),
     "image_weight": ("image_weight", [-2.0, INF, False]),
     "part_cost": ("part_cost", [-0.01, INF, NAN, True]),
+    "part_ratio": ("part_ratio", [0.0, -0.5, 1.5, INF, NAN, "half", True]),
     "anchor": ("anchor", [-0.01, INF, NAN, "strong", True]),
     "init": ("init", ["sometimes", 1, None, True]),
     "proposals": ("proposals", [3, True, ["w.npz"]]),

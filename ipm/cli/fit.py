@@ -84,6 +84,9 @@ PriorOpt = Annotated[float, typer.Option(help="weight of a pull towards the star
 PartCostOpt = Annotated[float | None, typer.Option("--part-cost", help=(
     "loss added per part a discrete value adds (a handle, a wing): a part stays only where it "
     "lowers the loss by more (default 0)"))]
+PartRatioOpt = Annotated[float | None, typer.Option("--part-ratio", help=(
+    "silhouettes: the parts a fit's discrete values add stay only where they bring the loss below this "
+    "share of the best fit without them; 1 keeps the lower loss (default: the generator's, dishes 0.5)"))]
 AnchorOpt = Annotated[float | None, typer.Option(help=(
     "single view without depth: loss per unit of normalized distance an anchored parameter (a "
     "vessel section's aspect and squareness) moves from the start (default 0.02; 0 frees them)"))]
@@ -150,6 +153,7 @@ def register(app: typer.Typer) -> None:
         no_pose: NoPoseOpt = False,
         prior: PriorOpt = 0.0,
         part_cost: PartCostOpt = None,
+        part_ratio: PartRatioOpt = None,
         anchor: AnchorOpt = None,
         subdivide: SubdivideOpt = None,
         subdivide_levels: SubdivideLevelsOpt = 1,
@@ -299,7 +303,8 @@ def _fit_parametric(o: SimpleNamespace) -> None:
                      subdivide=o.subdivide, subdivide_levels=o.subdivide_levels, lod=o.lod,
                      sdf_silhouette=o.sdf_silhouette,
                      transport={k: v for k, v in (("blur", o.blur), ("dustbin", o.dustbin)) if v is not None},
-                     **{k: v for k, v in (("polish", o.polish), ("part_cost", o.part_cost), ("anchor", o.anchor))
+                     **{k: v for k, v in (("polish", o.polish), ("part_cost", o.part_cost),
+                                                    ("part_ratio", o.part_ratio), ("anchor", o.anchor))
                         if v is not None})
     finally:
         if started and started[0]:

@@ -21,6 +21,7 @@ from ipm.optim import gradient as G
 from ipm.optim import phases
 from ipm.optim.encoding import DIST, ELEV, FOV, LOG2S_RANGE, T_RANGE, YAW_RANGE
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
+from ipm.optim.parsimony import nested, simpler_winner
 from ipm.optim.phases import OUTLINE, OUTLINE_SHARE, OUTLINE_STEPS, SEARCH
 from ipm.optim.pose import (
     initial_starts,
@@ -122,6 +123,14 @@ def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float
     return float(getattr(gen, "mask_lr", None) or MASK_LR)
 
 
+def part_ratio(gen, settings: FitSettings) -> float:
+    """The parsimony rule's share (:func:`ipm.optim.parsimony.simpler_winner`): ``settings.part_ratio`` if given,
+    else the generator's ``part_ratio``, else 1 (no rule)."""
+    if settings.part_ratio is not None:
+        return float(settings.part_ratio)
+    return float(getattr(gen, "part_ratio", None) or 1.0)
+
+
 def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink: Callable[[dict], None] | None = None,
             replay=(), progress: Callable[[Evaluator], None] | None = None) -> tuple[FitResult, Problem, dict]:
     """Search, then polish; returns (FitResult, the problem, the best point ``{"x", "discrete"}``)."""
@@ -180,12 +189,16 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     # separated after longer refinement), then the best of all gets the rest. Silhouettes of meshes are
     # polished at a finer blur: the leaders are re-evaluated at it by their refinement.
     leaders = ev.leaders(2) if space.discrete else ev.leaders(1)
+    # the parsimony rule's evaluation (the winner's shape without the parts the other leader lacks) is kept too,
+    # where one leader has fewer parts than the other and nothing else different
+    n_end = n_tie + (len(leaders) == 2 and nested(prob, leaders[0].discrete, leaders[1].discrete)
+                     and isinstance(target, MaskTarget) and part_ratio(gen, settings) < 1)
     finer = (isinstance(target, MaskTarget) and prob.shape.polish_sigma != 1.0
-             and settings.budget - n_tie - ev.count > 0)
+             and settings.budget - n_end - ev.count > 0)
     polishing = phases.polish(prob.shape.polish_sigma) if finer else SEARCH
     if finer:
         ev.forget_best()
-    with ev.running(polishing, until=settings.budget - n_tie):
+    with ev.running(polishing, until=settings.budget - n_end):
         for i, lead in enumerate(leaders):
             if ev.remaining <= 0:
                 break
@@ -225,12 +238,13 @@ def _starts(prob: Problem, ev: Evaluator, settings: FitSettings) -> tuple[list, 
 def _finish(prob: Problem, ev: Evaluator, gen, starts, settings: FitSettings, n_tie: int, lr: float
             ) -> tuple[FitResult, Problem, dict]:
     """The tie rule and the final refinement of the winner with what is left of the budget."""
-    x, d, loss = ev.best.x, ev.best.discrete, ev.best.loss
+    winner, dropped = simpler_winner(prob, ev, part_ratio(gen, settings))
+    x, d, loss = winner.x, winner.discrete, winner.loss
     tied: tuple[str, ...] = ()
     if x is None:  # a budget too small for a single evaluation of the search
         x, d = starts[0][0], dict(prob.d0)
     elif n_tie:
-        x, d, loss, tied = break_ties(prob, ev, ev.best)
+        x, d, loss, tied = break_ties(prob, ev, winner)
     if ev.remaining > 0 and math.isfinite(loss):
         ev.phase = "polish:final"
         xr, lf = G.refine(ev, x, d, ev.remaining, settings.local, lr / 2, mask=prob.pose_mask)
@@ -238,7 +252,7 @@ def _finish(prob: Problem, ev: Evaluator, gen, starts, settings: FitSettings, n_
             x, loss = xr, lf
     best = {"x": x, "discrete": d}
     result = FitResult(generator=gen.name, params=prob.values(x, d), loss=float(loss), evaluations=ev.count,
-                       wall_time_s=ev.elapsed_s, tied=tied)
+                       wall_time_s=ev.elapsed_s, tied=tied, dropped=dropped)
     return result, prob, best
 
 
