@@ -70,7 +70,7 @@ class Generator(ABC):
     # Adam step of silhouette fits in normalized parameter space (ipm.optim.fit.fit_lr); None: the fit's
     # default. Generators with many fine-grained parameters (a profile of radii) want a smaller one
     mask_lr: float | None = None
-    # the parsimony rule of silhouette fits (ipm.optim.parsimony; FitSettings.part_ratio): the share of the best
+    # the parsimony rule of single-view fits (ipm.optim.parsimony; FitSettings.part_ratio): the share of the best
     # loss without them below which the parts its discrete values add (Param.adds) must bring a fit's loss to stay.
     # None: 1, no rule (the lower loss wins)
     part_ratio: float | None = None

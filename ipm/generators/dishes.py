@@ -296,10 +296,10 @@ class DishesGenerator(Generator):
     # measured on the real mug scan from 1 view at 256 px, 500 evaluations: lr 0.02 ends at input IoU 0.95
     # with a wavy profile and the handle turned out of sight (held-out 0.65); 0.005 reaches 0.99 (0.90)
     mask_lr = 0.005
-    # the parsimony rule (ipm.optim.parsimony): measured on the tune split's vessels (experiments/table1.toml),
-    # one and two views, 500 evaluations, the polished loss with a real part over the best without it: 0.09 and
-    # 0.16 (the two mugs' handles), 0.26 (the pitcher's), 0.27 (the teapot's spout and knob); K = 2 0.19 and
-    # 0.35; with a part the object lacks: 0.82 (the sugar bowl's spout standing in for its knob), 0.91 and 0.95
+    # the parsimony rule of single-view fits (ipm.optim.parsimony): measured on the tune split's vessels
+    # (experiments/table1.toml), one view, 500 evaluations, the polished loss with a real part over the best
+    # without it: 0.09 and 0.16 (the two mugs' handles), 0.26 (the pitcher's), 0.27 (the teapot's spout and
+    # knob); with a part the object lacks: 0.82 (the sugar bowl's spout standing in for its knob), 0.91 and 0.95
     # (handles on the bowl and the vase, which the tie rule drops as well)
     part_ratio = 0.5
     parts = ("body", "handle", "spout", "knob")

@@ -21,7 +21,7 @@ from ipm.optim import gradient as G
 from ipm.optim import phases
 from ipm.optim.encoding import DIST, ELEV, FOV, LOG2S_RANGE, T_RANGE, YAW_RANGE
 from ipm.optim.evaluator import BudgetExhausted, Evaluator
-from ipm.optim.parsimony import nested, simpler_winner
+from ipm.optim.parsimony import applies, nested, simpler_winner
 from ipm.optim.phases import OUTLINE, OUTLINE_SHARE, OUTLINE_STEPS, SEARCH
 from ipm.optim.pose import (
     initial_starts,
@@ -191,8 +191,8 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     leaders = ev.leaders(2) if space.discrete else ev.leaders(1)
     # the parsimony rule's evaluation (the winner's shape without the parts the other leader lacks) is kept too,
     # where one leader has fewer parts than the other and nothing else different
-    n_end = n_tie + (len(leaders) == 2 and nested(prob, leaders[0].discrete, leaders[1].discrete)
-                     and isinstance(target, MaskTarget) and part_ratio(gen, settings) < 1)
+    n_end = n_tie + (len(leaders) == 2 and applies(prob, part_ratio(gen, settings))
+                     and nested(prob, leaders[0].discrete, leaders[1].discrete))
     finer = (isinstance(target, MaskTarget) and prob.shape.polish_sigma != 1.0
              and settings.budget - n_end - ev.count > 0)
     polishing = phases.polish(prob.shape.polish_sigma) if finer else SEARCH

@@ -131,9 +131,10 @@ class Problem:
         self.search_mask[detail] = 0
         # anchored parameters (Param.anchored) of a single-view fit without depth (which measures what one
         # silhouette confuses): charged their distance from the start
-        one_view = isinstance(target, MaskTarget) and target.masks.shape[0] == 1 and target.depth is None
+        # (and the parsimony rule's fits: ipm.optim.parsimony)
+        self.one_view = isinstance(target, MaskTarget) and target.masks.shape[0] == 1 and target.depth is None
         self.anchored = [i for i, j in enumerate(self.free)
-                         if one_view and settings.anchor > 0 and by_name[cont[j]].anchored]
+                         if self.one_view and settings.anchor > 0 and by_name[cont[j]].anchored]
         self._frames: dict = {}
         self._target_sphere: tuple | None = None
         self.c0, self.L0 = self.frame(self.d0)

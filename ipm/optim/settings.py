@@ -88,9 +88,9 @@ class FitSettings:
     # description length: added to the loss per part a discrete value adds (Param.adds: a handle, a wing,
     # a roof-top box), so that a part stays only where it lowers the loss by more (PART_COST)
     part_cost: Annotated[float, Meta(ge=0, extra={"noun": "a loss per part"})] = PART_COST
-    # the parsimony rule (ipm.optim.parsimony): silhouettes, a winner's extra parts stay only where they bring
-    # the loss below this share of the best fit without them; 1 keeps the lower loss; None: the generator's
-    # (Generator.part_ratio)
+    # the parsimony rule (ipm.optim.parsimony): in single-view fits without depth, a winner's extra parts stay
+    # only where they bring the loss below this share of the best fit without them; 1 keeps the lower loss;
+    # None: the generator's (Generator.part_ratio)
     part_ratio: Annotated[float, Meta(gt=0, le=1, extra={"noun": "a share of the loss"})] | None = None
     # single-view fits without depth: loss per unit of normalized distance (L1) of an anchored parameter
     # (Param.anchored: an oval or square section's aspect and squareness) from its starting value (ANCHOR)
