@@ -80,10 +80,16 @@ def _mesh_target() -> MeshTarget:
     return MeshTarget(gen.to_mesh(gen.values("mug")), samples=200)
 
 
-@pytest.mark.parametrize("target", [_two_views, _mesh_target], ids=["two views", "a mesh"])
+def _with_parts() -> MaskTarget:
+    one = _target()
+    labels = torch.where(one.masks > 0.5, 0, -1).long()   # every object pixel labelled "body"
+    return MaskTarget(one.masks, one.cameras, parts=labels, part_names=("body",))
+
+
+@pytest.mark.parametrize("target", [_two_views, _mesh_target, _with_parts], ids=["two views", "a mesh", "parts"])
 def test_the_rule_is_for_one_view(target):
-    """Two views tell a part from a stand-in for the outline, and a mesh shows every part as it is: the rule
-    does not apply, and the lower loss stays the winner."""
+    """Two views tell a part from a stand-in for the outline, a mesh shows every part as it is, and part labels
+    say where a part is: the rule does not apply, and the lower loss stays the winner."""
     prob = Problem(get_generator("dishes"), target(), FitSettings(preset="glass"))
     ev = _evaluated(prob, {(1, 0, 0): 0.030, (0, 0, 0): 0.046})
     best, fewer = simpler_winner(prob, ev, 0.5)

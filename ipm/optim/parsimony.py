@@ -1,4 +1,4 @@
-"""The parsimony rule: in a single-view fit without depth, a part that the view shows stays only where it buys
+"""The parsimony rule: in a fit to one silhouette alone, a part that the view shows stays only where it buys
 a clear fit, so that a handle does not stand in for an outline the generator's body of revolution cannot make.
 
 One view cannot tell such a stand-in from a part; two or more can (the stand-in then shows where the object has
@@ -28,9 +28,9 @@ def simpler(prob: Problem, ev: Evaluator, ratio: float) -> list[dict]:
 
 
 def applies(prob: Problem, ratio: float) -> bool:
-    """Whether the rule applies: ``ratio`` below 1, and a single-view silhouette target without depth
-    (:attr:`Problem.one_view`)."""
-    return ratio < 1.0 and prob.one_view
+    """Whether the rule applies: ``ratio`` below 1, and one silhouette alone (:attr:`Problem.one_view`, and no
+    part labels or image either: where they are given, they say where a part is; the rule was measured without)."""
+    return ratio < 1.0 and prob.one_view and not prob.target.cues
 
 
 def fewer_parts(prob: Problem, d: dict, than: dict) -> bool:
