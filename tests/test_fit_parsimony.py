@@ -7,6 +7,8 @@ against 0.046 without; the tune mug's, 0.009 against 0.101)."""
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 
@@ -17,6 +19,7 @@ from ipm.optim.fit import FitSettings, MaskTarget, MeshTarget, Problem, part_rat
 from ipm.optim.parsimony import simpler_winner
 from ipm.render.camera import orbit_camera
 from ipm.render.raster import rasterize_mesh
+from tests.conftest import run_cli
 
 COMBOS = ("has_handle", "has_spout", "has_knob")
 
@@ -135,3 +138,21 @@ def test_the_fit_without_the_parts_may_be_the_winners_own_body(prob):
     ev(x_w, {"has_handle": 1, "has_spout": 0, "has_knob": 0}, grad=False)
     ev(x_other, {"has_handle": 0, "has_spout": 0, "has_knob": 0}, grad=False)
     assert simpler_winner(prob, ev, 0.5)[1] == ()
+
+
+def test_the_cli_fit_names_what_the_rule_dropped(tmp_path, capsys):
+    """``ipm fit --part-ratio``: the mug's handle, in view, stays where the lower loss wins (1); where a part
+    must bring the loss below 1 % of the fit without it, it goes, and result.json says so under ``dropped``."""
+    masks = tmp_path / "m"
+    code, _, err = run_cli(["render", "dishes", "--preset", "mug", "--views", "1", "--size", "48", "--no-previews",
+                            "-o", masks], capsys)
+    assert code == 0, err
+    got = {}
+    for ratio in ("1", "0.01"):
+        run = tmp_path / f"run_{ratio}"
+        code, _, err = run_cli(["fit", "dishes", "--masks", masks, "--preset", "glass", "--budget", "80",
+                                "--part-ratio", ratio, "-o", run], capsys)
+        assert code == 0, err
+        result = json.loads((run / "result.json").read_text())
+        got[ratio] = (result["discrete"]["has_handle"], result["dropped"])
+    assert got == {"1": (1, []), "0.01": (0, ["has_handle"])}
