@@ -50,8 +50,14 @@ def _heads() -> list[str]:
 
 
 def _rows(folder: str) -> list[dict]:
+    """The folder's rows in its experiment's cell order (a resumed run appends the cells it ran again)."""
     path = ROOT / "results" / folder / "rows.jsonl"
-    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+    if not path.is_file():
+        return []
+    rows = [json.loads(line) for line in path.read_text().splitlines()]
+    exp = path.parent / "experiment.json"
+    order = {key: i for i, key in enumerate(json.loads(exp.read_text())["cells"])} if exp.is_file() else {}
+    return sorted(rows, key=lambda r: order.get(r.get("key"), len(order)))
 
 
 def _tables() -> list[str]:

@@ -193,7 +193,7 @@ class FitResult:
     # Param.adds names them: "handle") whose own parameters it set back to the preset's for the same reason
     tied: tuple[str, ...] = ()
     # discrete values that add parts (Param.adds) the fit took lower than its best loss's because those parts
-    # bought too little in a single-view fit (the parsimony rule: ipm.optim.parsimony)
+    # bought too little in a fit to one silhouette (the parsimony rule: ipm.optim.parsimony)
     dropped: tuple[str, ...] = ()
     # the pose as JSON with the turns that map the fitted shape onto itself and the equivalent poses
     # (ipm.optim.problem.Problem.pose_json with symmetry)

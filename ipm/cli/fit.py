@@ -85,7 +85,7 @@ PartCostOpt = Annotated[float | None, typer.Option("--part-cost", help=(
     "loss added per part a discrete value adds (a handle, a wing): a part stays only where it "
     "lowers the loss by more (default 0)"))]
 PartRatioOpt = Annotated[float | None, typer.Option("--part-ratio", help=(
-    "one view without depth: the parts a fit's discrete values add stay only where they bring the loss below this "
+    "one silhouette alone: the parts a fit's discrete values add stay only where they bring the loss below this "
     "share of the best fit without them; 1 keeps the lower loss (default: the generator's, dishes 0.5)"))]
 AnchorOpt = Annotated[float | None, typer.Option(help=(
     "single view without depth: loss per unit of normalized distance an anchored parameter (a "
@@ -304,7 +304,7 @@ def _fit_parametric(o: SimpleNamespace) -> None:
                      sdf_silhouette=o.sdf_silhouette,
                      transport={k: v for k, v in (("blur", o.blur), ("dustbin", o.dustbin)) if v is not None},
                      **{k: v for k, v in (("polish", o.polish), ("part_cost", o.part_cost),
-                                                    ("part_ratio", o.part_ratio), ("anchor", o.anchor))
+                                          ("part_ratio", o.part_ratio), ("anchor", o.anchor))
                         if v is not None})
     finally:
         if started and started[0]:

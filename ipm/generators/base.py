@@ -70,9 +70,9 @@ class Generator(ABC):
     # Adam step of silhouette fits in normalized parameter space (ipm.optim.fit.fit_lr); None: the fit's
     # default. Generators with many fine-grained parameters (a profile of radii) want a smaller one
     mask_lr: float | None = None
-    # the parsimony rule of single-view fits (ipm.optim.parsimony; FitSettings.part_ratio): the share of the best
-    # loss without them below which the parts its discrete values add (Param.adds) must bring a fit's loss to stay.
-    # None: 1, no rule (the lower loss wins)
+    # the parsimony rule of fits to one silhouette (ipm.optim.parsimony; FitSettings.part_ratio): the parts its
+    # discrete values add (Param.adds) stay only where they bring the fit's loss below this share of the best loss
+    # without them. None: 1, no rule (the lower loss wins)
     part_ratio: float | None = None
     # names of the face groups (parts) its meshes can have, whatever the discrete values: what a part-label
     # target may name. Empty: the groups of the mesh at the default values

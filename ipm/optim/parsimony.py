@@ -56,8 +56,8 @@ def simpler_winner(prob: Problem, ev: Evaluator, ratio: float) -> tuple[Best, tu
     better fitted in the winner's search than in a combination that got less of it). It is taken where the
     winner's loss is above ``ratio`` times its loss: the parts did not bring the loss below that share of the
     best fit without them. Among several, the lowest loss (then the fewest parts). ``ratio`` 1 keeps the
-    winner (the lower loss wins), and so does a fit the rule does not apply to (:func:`applies`: one view
-    without depth; ``ratio`` was measured there, :attr:`ipm.generators.base.Generator.part_ratio`)."""
+    winner (the lower loss wins), and so does a fit the rule does not apply to (:func:`applies`: one silhouette
+    alone; ``ratio`` was measured there, :attr:`ipm.generators.base.Generator.part_ratio`)."""
     winner = ev.best
     combos = simpler(prob, ev, ratio)
     key = lambda d: tuple(sorted(d.items()))  # noqa: E731 (the evaluator's key of a combination)

@@ -88,7 +88,7 @@ class FitSettings:
     # description length: added to the loss per part a discrete value adds (Param.adds: a handle, a wing,
     # a roof-top box), so that a part stays only where it lowers the loss by more (PART_COST)
     part_cost: Annotated[float, Meta(ge=0, extra={"noun": "a loss per part"})] = PART_COST
-    # the parsimony rule (ipm.optim.parsimony): in single-view fits without depth, a winner's extra parts stay
+    # the parsimony rule (ipm.optim.parsimony): in fits to one silhouette alone, a winner's extra parts stay
     # only where they bring the loss below this share of the best fit without them; 1 keeps the lower loss;
     # None: the generator's (Generator.part_ratio)
     part_ratio: Annotated[float, Meta(gt=0, le=1, extra={"noun": "a share of the loss"})] | None = None
