@@ -31,6 +31,7 @@ def path(rel: str) -> Path:
 # the files the demo and the benchmarks use, with their up axes where the data README's is wrong
 MUG = "vessels/ocrtoc_mug.ply"                   # Z up
 TEAPOT = "vessels/trimesh_teapot.stl"             # Z up (table1.toml's tune split)
+SUGAR_BOWL = "vessels/polyhaven_teaset_sugar_bowl.obj"   # Y up (table1.toml's tune split)
 BOTTLE = "vessels/trimesh_fuze_bottle.obj"       # Z up (the README says Y: its long axis is Z, base at z = 0)
 ARMCHAIR = "furniture/kaolin_armchair.obj"       # Y up
 DUTCH_HOUSE = "buildings/3dbag_0503100000031927_lod22.obj"   # Z up, LoD2.2 (table_coverage's building_5)

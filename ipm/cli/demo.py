@@ -23,8 +23,6 @@ def register(app: typer.Typer) -> None:
 
         out.mkdir(parents=True, exist_ok=True)
         torch.manual_seed(0)
-        out.mkdir(parents=True, exist_ok=True)
-        torch.manual_seed(0)
         print("fitting the dishes generator to 2 masks of a real mug scan ...", flush=True)
         scores = S.fit_real_mug(out, budget, size)
         print(f"  mask IoU on the input views: {', '.join(f'{v:.3f}' for v in scores['input_view_iou'])}")
@@ -72,6 +70,7 @@ def register(app: typer.Typer) -> None:
         for name, r in S.teapot_spout(out).items():
             print(f"  {name:15s} held-out IoU {r['heldout_iou']:.3f} (has_spout {r['has_spout']}, has_knob "
                   f"{r['has_knob']}) in {r['wall_time_s']} s")
+        _parsimony(S, out)
         print("universal SDF generator: meshes and Jacobians ...", flush=True)
         for name, r in S.sdf_showcase(out).items():
             print(f"  {name:6s} {r['faces']:7d} faces, watertight={r['watertight']}, Jacobian {r['jacobian']}, "
@@ -84,11 +83,23 @@ def register(app: typer.Typer) -> None:
         print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
         print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
               "bottle_revolved.obj; outline.png and outline.svg")
-        print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json; teapot/ alike")
+        print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json; teapot/ and "
+              "parsimony/ alike")
         print("  exports/: armchair_exact.obj (exact CSG), armchair.usda (parameters as customData), armchair.scad and "
               "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
               "structures.jsonl (every tree tried), result.json")
+
+
+def _parsimony(S, out: Path) -> None:
+    """The parsimony step (:func:`ipm.showcase.parsimony`) and its lines: each fit's held-out IoU, parts and what the
+    rule dropped."""
+    print("parsimony (#34): a real sugar bowl from one view, a part kept only where it halves the loss, and not",
+          flush=True)
+    for name, r in S.parsimony(out).items():
+        parts = ", ".join(f"{k} {v}" for k, v in r["parts"].items())
+        dropped = f"; dropped {', '.join(r['dropped'])}" if r["dropped"] else ""
+        print(f"  {name:14s} held-out IoU {r['heldout_iou']:.3f} ({parts}{dropped}) in {r['wall_time_s']} s")
 
 
 def _print_exports(ex: dict) -> None:
