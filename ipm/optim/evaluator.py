@@ -173,7 +173,7 @@ class Evaluator:
                 self.sink(rec)
         self.last = rec
         if self.keep_best:
-            key = tuple(sorted(disc.items()))
+            key = _combination(disc)
             best = Best(loss, torch.tensor(xs, dtype=torch.float64), dict(disc), self.count, extras)
             if loss < self.best_by_discrete.get(key, Best()).loss:
                 self.best_by_discrete[key] = best
@@ -226,9 +226,18 @@ class Evaluator:
         self.best = Best()
         self.best_by_discrete = {}
 
+    def best_of(self, discrete: dict) -> Best:
+        """The best point seen with discrete values ``discrete`` (an empty :class:`Best` where there is none)."""
+        return self.best_by_discrete.get(_combination(discrete), Best())
+
     def leaders(self, k: int) -> list[Best]:
         """The best point of each of the ``k`` best discrete combinations."""
         return sorted(self.best_by_discrete.values(), key=lambda b: b.loss)[:k]
+
+
+def _combination(discrete: dict) -> tuple:
+    """The key of a discrete combination in :attr:`Evaluator.best_by_discrete`."""
+    return tuple(sorted(discrete.items()))
 
 
 def _difference(rec: dict, xs: list[float], disc: dict, grad: bool) -> str:

@@ -36,9 +36,14 @@ def applies(prob: Problem, ratio: float) -> bool:
 def fewer_parts(prob: Problem, d: dict, than: dict) -> bool:
     """Whether discrete values ``d`` differ from ``than`` only in values that add parts
     (:attr:`ipm.params.Param.adds`), each lower."""
-    adds = {p.name for p in prob.gen.spec.discrete if p.adds}
+    adds = _switches(prob)
     diff = [k for k in than if d.get(k) != than[k]]
     return set(d) == set(than) and bool(diff) and all(k in adds and d[k] < than[k] for k in diff)
+
+
+def _switches(prob: Problem) -> list[str]:
+    """The discrete parameters whose values add parts (:attr:`ipm.params.Param.adds`)."""
+    return [p.name for p in prob.gen.spec.discrete if p.adds]
 
 
 def nested(prob: Problem, a: dict, b: dict) -> bool:
@@ -60,17 +65,16 @@ def simpler_winner(prob: Problem, ev: Evaluator, ratio: float) -> tuple[Best, tu
     alone; ``ratio`` was measured there, :attr:`ipm.generators.base.Generator.part_ratio`)."""
     winner = ev.best
     combos = simpler(prob, ev, ratio)
-    key = lambda d: tuple(sorted(d.items()))  # noqa: E731 (the evaluator's key of a combination)
     for d in combos:
         try:
             ev.phase = "parsimony"
             ev(prob.repose(winner.x, winner.discrete, d), d, grad=False)
         except BudgetExhausted:
             break
-    adds = [p.name for p in prob.gen.spec.discrete if p.adds]
+    adds = _switches(prob)
     picks = []
     for d in combos:
-        cand = ev.best_by_discrete[key(d)]
+        cand = ev.best_of(d)
         if winner.loss > ratio * cand.loss:
             picks.append((cand.loss, sum(d[k] for k in adds), cand))
     if not picks:
