@@ -150,8 +150,8 @@ def case_t1_cup(tmp: Path, target_eps: float) -> dict:
     return _table1_cell("cup_1", target_eps)
 
 
-COUNTS_FIXED = {"sections": 4, "balcony_pattern": 1, "roof_type": 0, "has_door": 1, "back_windows": 1, "wings": 0,
-                "wing1_side": 0, "wing1_roof": 0, "wing2_side": 2, "wing2_roof": 0, "wing3_side": 1,
+COUNTS_FIXED = {"sections": 4, "balcony_pattern": 1, "roof_type": 0, "roof_axis": 0, "has_door": 1, "back_windows": 1,
+                "wings": 0, "wing1_side": 0, "wing1_roof": 0, "wing2_side": 2, "wing2_roof": 0, "wing3_side": 1,
                 "wing3_roof": 0, "roof_boxes": 0}
 
 

@@ -128,15 +128,34 @@ def test_height_is_plinth_plus_floors_plus_roof_and_length_is_sections_times_wid
     assert size[2] == pytest.approx(values["depth"])
 
 
+@pytest.mark.parametrize("roof_axis", [0, 1])
 @pytest.mark.parametrize("roof_type", [0, 1, 2, 3])
-def test_roof_types_reach_the_roof_height(roof_type):
-    values = GEN.values("house2", {"roof_type": roof_type})
+def test_roof_types_reach_the_roof_height(roof_type, roof_axis):
+    values = GEN.values("house2", {"roof_type": roof_type, "roof_axis": roof_axis})
     mesh = build(values)
     roof = components(mesh, "roof")
     assert len(roof) == 1 and roof[0].is_watertight and roof[0].volume > 0
     top = values["plinth_height"] + values["floors"] * values["floor_height"]
     assert roof[0].bounds[0][1] == pytest.approx(top)
     assert roof[0].bounds[1][1] == pytest.approx(top + values["roof_height"])
+
+
+@pytest.mark.parametrize("roof_type", [1, 2, 3])
+def test_roof_axis_turns_the_roof_of_the_block_turned(roof_type):
+    """A ridge along Z (``roof_axis`` 1) on a block a long and b deep is the ridge along X of the block b long and
+    a deep, turned a quarter about Y; the walls keep their footprint; faces and counts are the same."""
+    base = {"sections": 1, "roof_type": roof_type, "roof_ridge": 0.4, "mansard_inset": 0.2}
+    across = GEN.values("house2", {**base, "section_width": 11.0, "depth": 7.0, "roof_axis": 1})
+    along = GEN.values("house2", {**base, "section_width": 7.0, "depth": 11.0, "roof_axis": 0})
+    a, b = GEN.to_mesh(across), GEN.to_mesh(along)
+    assert GEN.counts(across) == GEN.counts(along) and torch.equal(a.faces, b.faces)
+    ra, rb = (np.concatenate([c.vertices for c in components(m, "roof")]) for m in (a, b))
+    turned = np.stack([-rb[:, 2], rb[:, 1], rb[:, 0]], -1)
+    assert np.allclose(ra, turned, atol=1e-9)
+    ridge = ra[np.isclose(ra[:, 1], ra[:, 1].max())]
+    assert np.ptp(ridge[:, 0]) < 1e-9 < np.ptp(ridge[:, 2])      # the ridge runs along Z
+    walls = lambda m: np.concatenate([c.vertices for c in components(m, "walls")])  # noqa: E731
+    assert np.ptp(walls(a)[:, 0]) == pytest.approx(11.0) and np.ptp(walls(a)[:, 2]) == pytest.approx(7.0)
 
 
 @pytest.mark.parametrize("pattern,expected", [(0, 0), (1, 4 * 4), (2, 2 * 4), (3, 8)])

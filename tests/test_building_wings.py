@@ -243,11 +243,12 @@ def test_extremes_with_wings_and_boxes_keep_parts_valid():
 
 # -- Jacobians -----------------------------------------------------------------------------------------------
 
-def jacobian_case(roof_type: int) -> dict:
+def jacobian_case(roof_type: int, roof_axis: int = 0) -> dict:
     """Three wings (front, right, left), two roof-top boxes, every roof type somewhere (the main roof
-    ``roof_type``, wing i ``roof_type + i`` mod 4), sizes away from every clamp."""
+    ``roof_type`` with its ridge along ``roof_axis``, wing i ``roof_type + i`` mod 4), sizes away from every
+    clamp."""
     v = dict(GEN.presets["house2"], floors=1, windows=2, section_width=9.0, depth=7.0, roof_type=roof_type,
-             wings=3, roof_boxes=2, roof_ridge=0.5, mansard_break=0.65, mansard_inset=0.2)
+             roof_axis=roof_axis, wings=3, roof_boxes=2, roof_ridge=0.5, mansard_break=0.65, mansard_inset=0.2)
     for i, (side, offset, width, length, height, rh) in enumerate(
             [(0, 0.4, 3.0, 3.0, 4.0, 1.5), (1, -0.3, 2.5, 2.0, 5.0, 2.0), (3, 0.6, 4.0, 4.0, 3.0, 1.0)], 1):
         v.update({f"wing{i}_side": side, f"wing{i}_roof": (roof_type + i) % 4, f"wing{i}_offset": offset,
@@ -259,9 +260,9 @@ def jacobian_case(roof_type: int) -> dict:
     return GEN.values(None, v)
 
 
-@pytest.mark.parametrize("roof_type", [0, 1, 2, 3])
-def test_jacobian_matches_float64_central_differences_with_wings_and_boxes(roof_type):
-    values = jacobian_case(roof_type)
+@pytest.mark.parametrize("roof_type,roof_axis", [(0, 0), (1, 0), (2, 0), (3, 0), (1, 1), (3, 1)])
+def test_jacobian_matches_float64_central_differences_with_wings_and_boxes(roof_type, roof_axis):
+    values = jacobian_case(roof_type, roof_axis)
     theta, discrete = GEN.split(values)
     f = lambda t: GEN.mesh(t, discrete).verts  # noqa: E731
     J = mesh_jacobian(f, theta)

@@ -419,8 +419,8 @@ def test_shipped_experiments_nest_well_within_the_limit():
 # -- enumerate with ranges for some discrete parameters ------------------------------------------------
 
 def test_enumerate_with_ranges_searches_those_and_holds_the_rest(tmp_path, capsys):
-    """``--discrete enumerate --range floors=4:10 --range windows=2:6`` on the building (15 discrete
-    parameters): the two ranged ones are searched (35 combinations), the other 13 stay at the start's
+    """``--discrete enumerate --range floors=4:10 --range windows=2:6`` on the building (16 discrete
+    parameters): the two ranged ones are searched (35 combinations), the other 14 stay at the start's
     values, and one info line says so; without ``--range`` the 64-combination limit still refuses it."""
     masks = tmp_path / "masks"
     assert run(["render", "building", "--views", "1", "--size", "40", "--no-previews", "-o", masks, "-q"],
@@ -431,20 +431,20 @@ def test_enumerate_with_ranges_searches_those_and_holds_the_rest(tmp_path, capsy
     assert code == 0, err
     said = [line for line in err.splitlines() if "enumerate searches" in line]
     assert len(said) == 1, err
-    assert "given ranges (floors, windows); the other 13 stay at the start's values" in said[0]
+    assert "given ranges (floors, windows); the other 14 stay at the start's values" in said[0]
     from ipm.generators import get_generator
 
     start = get_generator("building").values(None, {})
     params = json.loads((run_dir / "result.json").read_text())["params"]
     held = [p.name for p in get_generator("building").spec.discrete if p.name not in ("floors", "windows")]
-    assert len(held) == 13 and all(params[n] == start[n] for n in held)
+    assert len(held) == 14 and all(params[n] == start[n] for n in held)
     assert 4 <= params["floors"] <= 10 and 2 <= params["windows"] <= 6
     # a range and a fix: the fixed one is not "held" in the line, the rest are
     code, _, err = run(["fit", "building", "--masks", masks, "--discrete", "enumerate", "--range", "floors=4:5",
                         "--fix", "wings=1", "--budget", "6", "-o", tmp_path / "run2"], capsys)
     assert code == 0, err
     said = [line for line in err.splitlines() if "enumerate searches" in line]
-    assert len(said) == 1 and "the other 13 stay" in said[0] and "wings=" not in said[0], err
+    assert len(said) == 1 and "the other 14 stay" in said[0] and "wings=" not in said[0], err
     # no --range: as before, every discrete parameter is enumerated, and that is too many
     code, _, err = run(["fit", "building", "--masks", masks, "--discrete", "enumerate", "-o", tmp_path / "r3"],
                        capsys)

@@ -25,7 +25,10 @@ the top of its walls (``plinth_height + floors * floor_height``).
   (ridge ``roof_ridge`` times the roof's length), 3 mansard (steep lower slopes up to
   ``mansard_break`` of the roof height, their break line ``mansard_inset`` of the roof's smaller
   half-size inside the eaves, and a hipped top with a ridge of ``roof_ridge``); it overhangs the walls
-  by ``roof_overhang``. The wings' roofs are roof too.
+  by ``roof_overhang``. ``roof_axis`` turns the main roof's ridge: 0 along X (the facade: eaves to the
+  front), 1 along Z (a gable end to the front; the roof is built along X on the half-sizes swapped and
+  turned a quarter about Y, so its faces and counts are those of the same roof along X). The wings'
+  roofs are roof too.
 * **wings** (``wings`` of them, 0 to 3; wing ``i`` = 1, 2, 3 uses the parameters ``wing<i>_*``):
   each a box of plain walls on the ground attached to side ``wing<i>_side`` of the main block (0 front
   +Z, 1 right +X, 2 back -Z, 3 left -X), ``wing<i>_width`` wide along that side, standing
@@ -134,8 +137,8 @@ def _roof_box_params(k: int) -> list[Param]:
 
 
 def building_spec() -> ParamSpec:
-    """The building's parameters: 48 continuous sizes (metres) and fractions, and 15 discrete counts
-    and switches. The first 21 continuous and 7 discrete ones are the block without wings."""
+    """The building's parameters: 48 continuous sizes (metres) and fractions, and 16 discrete counts
+    and switches. The first 21 continuous and 8 discrete ones are the block without wings."""
     wings = [_wing_params(i) for i in range(1, MAX_WINGS + 1)]
     return ParamSpec((
         _f("floor_height", 2.8, 2.2, 5.0, "storey height", per="floors"),
@@ -170,6 +173,8 @@ def building_spec() -> ParamSpec:
         Param("windows", 4, 1, 10, "int", "windows per section per floor on a facade"),
         Param("balcony_pattern", 1, 0, 3, "int", "0 none, 1 all, 2 every other floor, 3 checkerboard"),
         Param("roof_type", 0, 0, 3, "int", _ROOF_DOC),
+        Param("roof_axis", 0, 0, 1, "bool", "the main roof's ridge: 0 along X (eaves to the front), 1 along Z "
+              "(a gable end to the front)"),
         Param("has_door", 1, 0, 1, "bool", "an entrance porch per section"),
         Param("back_windows", 1, 0, 1, "bool", "windows on the back facade too"),
         Param("wings", 0, 0, MAX_WINGS, "int", "number of wings attached to the main block", adds="wing"),
@@ -193,6 +198,8 @@ PRESETS: dict[str, dict[str, Value]] = {
                "depth": 13.0, "plinth_height": 1.0, "window_width": 1.6, "balcony_pattern": 3,
                "balcony_width": 3.2, "roof_type": 0, "roof_height": 1.0, "roof_overhang": 0.2},
     "house2": _HOUSE2,
+    # house2 with a gable end to the front (its ridge across the facade): a front-gabled house
+    "house_gable": {**_HOUSE2, "roof_axis": 1},
     "tower": {"sections": 1, "floors": 16, "windows": 4, "floor_height": 3.0, "section_width": 16.0,
               "depth": 16.0, "plinth_height": 1.2, "balcony_pattern": 2, "balcony_width": 2.8,
               "roof_type": 2, "roof_height": 2.5, "roof_ridge": 0.2, "roof_overhang": 0.4},
@@ -215,6 +222,16 @@ def _rot180(v: torch.Tensor) -> torch.Tensor:
     """Rotate points ``(N, 3)`` half a turn about Y (keeps the faces' orientation)."""
     x, y, z = v.unbind(-1)
     return torch.stack([-x, y, -z], -1)
+
+
+def _main_roof(kind: int, axis: int, rx, rz, base, top, p) -> torch.Tensor:
+    """The main block's roof vertices ``(k, 3)``: its ridge along X (``axis`` 0), or built along X on the
+    half-sizes swapped and turned a quarter about Y (``axis`` 1: the ridge along Z; a turn keeps the faces
+    outward and the topology the same)."""
+    if not axis:
+        return roof_verts(kind, rx, rz, base, top, p)
+    vx, vy, vz = roof_verts(kind, rz, rx, base, top, p).unbind(-1)
+    return torch.stack([-vz, vy, vx], -1)                # (x, y, z) -> (-z, y, x), as a wing's roof
 
 
 def _wing(side: int, kind: int, q: Mapping[str, torch.Tensor], hx, hz, embed, ov, p):
@@ -428,7 +445,7 @@ class BuildingGenerator(Generator):
         door_v = [_doors(L, p)] if n_door else []
         # roof of the main block, then the wings'
         ov = p["roof_overhang"]
-        roof_v = roof_verts(d["roof_type"], L.hx + ov, L.hz + ov, L.T, L.T + p["roof_height"], p)
+        roof_v = _main_roof(d["roof_type"], d["roof_axis"], L.hx + ov, L.hz + ov, L.T, L.T + p["roof_height"], p)
         kinds = (d["roof_type"], *(d[f"wing{i}_roof"] for i in range(1, d["wings"] + 1)))
         verts = [wall_v, *win_v, *bal_v, *door_v, roof_v, *wing_roofs]
         n_win = L.F * L.N * (1 + d["back_windows"])
