@@ -36,7 +36,8 @@ the top of its walls (``plinth_height + floors * floor_height``).
   not a count of floors, since its walls are plain and an annex's eaves rarely sit at a storey of the
   main block), its center ``wing<i>_offset`` (-1 to 1) of the way from the side's middle to where it
   would be flush with the side's end. It reaches ``min(hx, hz)`` into the main block (to the main
-  ridge when the block is longer than deep), so that a lower pitched roof on it runs into the main
+  ridge when the block is longer than deep and its ridge runs along X; with ``roof_axis`` 1 a wing on
+  the front or back reaches that far all the same), so that a lower pitched roof on it runs into the main
   roof instead of ending in a gable against the facade. Its roof, ``wing<i>_roof`` (types as
   ``roof_type``) ``wing<i>_roof_height`` high with the main roof's overhang and shape fractions, has
   its ridge along the wing's own axis (the direction it sticks out; with the part inside the main
