@@ -326,7 +326,7 @@ def test_a_second_bench_on_the_same_folder_is_refused(tmp_path):
 
 
 def test_bench_workers_die_with_their_parent(tmp_path):
-    """A bench killed with SIGKILL leaves no worker processes behind (``harness._die_with_parent``)."""
+    """A bench killed with SIGKILL leaves no worker processes behind (``ipm.threads.process_pool``)."""
     import os
     import subprocess
     import sys
@@ -335,9 +335,8 @@ def test_bench_workers_die_with_their_parent(tmp_path):
     script = tmp_path / "parent.py"
     script.write_text(
         "import os, signal, time\n"
-        "from concurrent.futures import ProcessPoolExecutor\n"
-        "from ipm.bench.harness import _die_with_parent\n"
-        "pool = ProcessPoolExecutor(2, initializer=_die_with_parent, initargs=(os.getpid(),))\n"
+        "from ipm.threads import process_pool\n"
+        "pool = process_pool(2)\n"
         "futs = [pool.submit(time.sleep, 120) for _ in range(2)]\n"
         "time.sleep(1.5)\n"
         "print(' '.join(str(p) for p in pool._processes), flush=True)\n"

@@ -79,13 +79,35 @@ def test_the_most_probable_combinations_come_in_order():
     assert list(_most_probable([], 3)) == [(1.0, ())]
 
 
+def test_the_yaw_lies_between_the_peak_bin_and_its_neighbours():
+    from ipm.proposals.net import YAW_BINS
+    from ipm.proposals.propose import peak_yaw
+
+    step = 360.0 / YAW_BINS
+
+    def probs(weights: dict) -> torch.Tensor:
+        p = torch.full((YAW_BINS,), 1e-9, dtype=torch.float64)
+        for k, w in weights.items():
+            p[k % YAW_BINS] = w
+        return p / p.sum()
+
+    assert peak_yaw(probs({5: 0.8, 4: 0.1, 6: 0.1})) == pytest.approx(5 * step, abs=1e-6)
+    assert peak_yaw(probs({5: 0.45, 6: 0.45})) == pytest.approx(5.5 * step, abs=1e-6)  # half way between
+    mid = peak_yaw(probs({5: 0.6, 6: 0.3}))
+    assert 5 * step < mid < 5.5 * step
+    # across 0: the neighbour below bin 0 is the last bin
+    assert peak_yaw(probs({0: 0.45, -1: 0.45})) == pytest.approx(360.0 - step / 2, abs=1e-6)
+    # a second peak half way round (a shape alike turned by 180 degrees) is left out, not averaged in
+    assert peak_yaw(probs({3: 0.5, 3 + YAW_BINS // 2: 0.45})) == pytest.approx(3 * step, abs=1e-6)
+
+
 def test_augmentations_are_a_function_of_their_seed_and_keep_the_object():
     gen = get_generator("dishes")
     data = make_samples(gen, 6, seed=3)
-    a = augment(data.masks, torch.Generator().manual_seed(7))
-    b = augment(data.masks, torch.Generator().manual_seed(7))
+    a = augment(data.inputs(), torch.Generator().manual_seed(7))
+    b = augment(data.inputs(), torch.Generator().manual_seed(7))
     assert torch.equal(a, b)
-    ious = [_iou(x[0], y[0]) for x, y in zip(a, data.masks)]
+    ious = [_iou(x[0], y[0]) for x, y in zip(a, data.inputs())]
     assert min(ious) > 0.6 and float(np.mean(ious)) > 0.8
 
 
@@ -250,6 +272,26 @@ def test_damaged_weights_and_checkpoints_are_bad_input(tmp_path):
         np.savez(tmp_path / "bad.npz", **{**ck, key: value})
         with pytest.raises(InputError, match=match):
             train(gen, s, checkpoint=tmp_path / "bad.npz", resume=True, data=data)
+
+
+def test_the_training_data_are_the_same_for_any_worker_count(monkeypatch):
+    """Chunk c draws from the seed and c alone: two processes draw what one does, in the same order, and a longer
+    data set of the same seed begins with a shorter one."""
+    from ipm.proposals import data as D
+
+    monkeypatch.setattr(D, "CHUNK", 3)
+    gen = get_generator("dishes")
+    seen = []
+    one = D.make_samples(gen, 8, seed=5, progress=lambda i, n: seen.append((i, n)))
+    two = D.make_samples(gen, 8, seed=5, workers=2)
+    short = D.make_samples(gen, 4, seed=5)
+    assert seen == [(3, 8), (6, 8), (8, 8)] and one.masks.dtype == torch.uint8
+    for a, b, c in zip((one.masks, one.continuous, one.discrete, one.yaw), (two.masks, two.continuous, two.discrete,
+                       two.yaw), (short.masks, short.continuous, short.discrete, short.yaw)):
+        assert torch.equal(a, b) and torch.equal(a[:4], c)
+    assert not torch.equal(one.masks[:3], one.masks[3:6])  # chunks draw different samples
+    other = D.make_samples(gen, 3, seed=6)
+    assert not torch.equal(other.continuous, one.continuous[:3])
 
 
 def test_a_generator_whose_renders_never_fit_the_image_is_refused(monkeypatch):

@@ -21,7 +21,6 @@ from __future__ import annotations
 import hashlib
 import json
 import logging
-import os
 import time
 from collections.abc import Callable
 from contextlib import contextmanager, suppress
@@ -462,9 +461,11 @@ def _executor(workers: int, scheduler: str | None):
     if workers <= 1:
         yield lambda exp_path, cells, out_dir: (run_cell(exp_path, c, out_dir) for c in cells)
         return
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import as_completed
 
-    pool = ProcessPoolExecutor(max_workers=workers, initializer=_die_with_parent, initargs=(os.getpid(),))
+    from ipm.threads import process_pool
+
+    pool = process_pool(workers)
 
     def submit_pool(exp_path, cells, out_dir):
         futures = [pool.submit(run_cell, exp_path, c, out_dir) for c in cells]
@@ -475,17 +476,3 @@ def _executor(workers: int, scheduler: str | None):
         yield submit_pool
     finally:  # on an error or Ctrl-C, cells not yet started are dropped instead of waited for
         pool.shutdown(wait=True, cancel_futures=True)
-
-
-def _die_with_parent(parent: int) -> None:
-    """Worker initializer: ask Linux to SIGKILL this worker when its parent dies (``prctl``
-    PR_SET_PDEATHSIG), so a killed bench leaves no orphans; elsewhere the pool's own shutdown applies."""
-    import ctypes
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        libc = ctypes.CDLL(None, use_errno=True)
-        libc.prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG = 1
-        if os.getppid() != parent:  # the parent died before prctl took effect
-            os._exit(1)

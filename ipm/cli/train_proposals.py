@@ -25,6 +25,8 @@ BatchOpt = Annotated[int, typer.Option(help="masks per step")]
 LrOpt = Annotated[float, typer.Option(help="Adam's learning rate (cosine down to a twentieth)")]
 EveryOpt = Annotated[int, typer.Option("--checkpoint-every", help="steps between checkpoints")]
 ResumeOpt = Annotated[bool, typer.Option(help="continue from OUTPUT.ckpt.npz")]
+WorkersOpt = Annotated[int, typer.Option(help="processes drawing the training renders (the data are the same for any "
+                                         "count); training itself runs on one thread")]
 
 
 def register(app: typer.Typer) -> None:
@@ -38,6 +40,7 @@ def register(app: typer.Typer) -> None:
         lr: LrOpt = 2e-3,
         checkpoint_every: EveryOpt = 200,
         resume: ResumeOpt = False,
+        workers: WorkersOpt = 1,
         seed: SeedOpt = 0,
         json_out: JsonOpt = False,
     ) -> None:
@@ -51,6 +54,8 @@ def register(app: typer.Typer) -> None:
         check_output(output, (".npz",))
         if checkpoint_every < 1:
             raise UsageError(f"--checkpoint-every: expected at least 1, got {checkpoint_every}")
+        if not 1 <= workers <= 256:
+            raise UsageError(f"--workers: expected 1 to 256 processes, got {workers}")
         s = TrainSettings(samples=samples, steps=steps, batch=batch, lr=lr, seed=seed)
         try:
             s.check()
@@ -61,7 +66,8 @@ def register(app: typer.Typer) -> None:
             raise UsageError(f"{gen}: expected a generator with continuous parameters, got none")
         ckpt = output.with_suffix(".ckpt.npz")
         with _bar() as progress:
-            net = train(g, s, checkpoint=ckpt, every=checkpoint_every, resume=resume, progress=progress)
+            net = train(g, s, checkpoint=ckpt, every=checkpoint_every, resume=resume, progress=progress,
+                        workers=workers)
         strip_checkpoint(ckpt, output)
         ckpt.unlink(missing_ok=True)
         scores = evaluate(net, make_samples(g, HELD_OUT, HELDOUT_SEED))

@@ -50,7 +50,7 @@ class Proposer:
         base = {p.name: float(p.lo + float(mean[i]) * (p.hi - p.lo)) for i, p in enumerate(cont)}
         stds = {p.name: float(std[i]) for i, p in enumerate(cont)}
         probs = [torch.softmax(lg[0].double(), 0) for lg in out["discrete"]]
-        yaw_rel = float(torch.argmax(out["yaw"][0])) * 360.0 / YAW_BINS
+        yaw_rel = peak_yaw(torch.softmax(out["yaw"][0].double(), 0))
         yaw = (yaw_rel + camera_azimuth(camera) - TRAIN_AZIMUTH + 180.0) % 360.0 - 180.0
         names = [(name, lo) for name, lo, _ in self.net.config.discrete]
         picked, mass = [], 0.0
@@ -62,6 +62,18 @@ class Proposer:
             if mass >= MASS:
                 break
         return picked
+
+
+def peak_yaw(p: torch.Tensor) -> float:
+    """The yaw (degrees) of bin probabilities ``p (YAW_BINS,)`` between their bins: the circular mean of the most
+    probable bin and its two neighbours, weighted by their probabilities (a yaw half way between two bins splits
+    its probability between them). Only the peak's neighbourhood counts: a shape that looks the same turned half
+    way round puts a second peak there, which an overall mean would average away."""
+    k = int(torch.argmax(p))
+    bins = torch.tensor([k - 1, k, k + 1], dtype=torch.float64)
+    w = p[bins.long() % YAW_BINS]
+    a = torch.deg2rad(bins * (360.0 / YAW_BINS))
+    return float(torch.rad2deg(torch.atan2((w * a.sin()).sum(), (w * a.cos()).sum()))) % 360.0
 
 
 def _most_probable(probs: list[torch.Tensor], k: int):

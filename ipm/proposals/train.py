@@ -60,21 +60,24 @@ def loss_terms(out: dict, s: Samples) -> dict[str, torch.Tensor]:
 
 
 def train(gen, s: TrainSettings, *, checkpoint: str | Path | None = None, every: int = 200, resume: bool = False,
-          data: Samples | None = None, progress: Callable[[str, int, int, float], None] | None = None) -> ProposalNet:
+          data: Samples | None = None, progress: Callable[[str, int, int, float], None] | None = None,
+          workers: int = 1) -> ProposalNet:
     """Train a proposal network for ``gen`` from scratch (or from ``checkpoint`` with ``resume``), rewriting the
-    checkpoint every ``every`` steps and at the end; ``data`` replaces the samples drawn from the seed (tests).
+    checkpoint every ``every`` steps and at the end; ``data`` replaces the samples drawn from the seed (tests), which
+    ``workers`` processes draw (the same data for any count).
     ``progress(stage, done, total, loss)`` with stage "data" or "train". Runs on one torch thread (restored
     after), so that a resumed run is bit-identical."""
     s.check()
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        return _train(gen, s, checkpoint, every, resume, data, progress)
+        return _train(gen, s, checkpoint, every, resume, data, progress, workers)
     finally:
         torch.set_num_threads(threads)
 
 
-def _train(gen, s: TrainSettings, checkpoint, every: int, resume: bool, data: Samples | None, progress) -> ProposalNet:
+def _train(gen, s: TrainSettings, checkpoint, every: int, resume: bool, data: Samples | None, progress,
+           workers: int) -> ProposalNet:
     torch.manual_seed(s.seed)
     net = ProposalNet(NetConfig.for_generator(gen))
     opt = torch.optim.Adam(net.parameters(), lr=s.lr)
@@ -82,7 +85,7 @@ def _train(gen, s: TrainSettings, checkpoint, every: int, resume: bool, data: Sa
     if resume:
         net, opt, start = _resumed(gen, s, checkpoint)
     if data is None:
-        data = make_samples(gen, s.samples, s.seed,
+        data = make_samples(gen, s.samples, s.seed, workers=workers,
                             progress=None if progress is None else lambda i, n: progress("data", i, n, math.nan))
     order = _Order(len(data), s.seed)
     net.train()
@@ -90,7 +93,7 @@ def _train(gen, s: TrainSettings, checkpoint, every: int, resume: bool, data: Sa
         for g in opt.param_groups:
             g["lr"] = cosine_lr(s.lr, step, s.steps)
         idx = torch.as_tensor(order.batch(step, s.batch))
-        batch = Samples(augment(data.masks[idx], torch.Generator().manual_seed(s.seed * 1_000_003 + step)),
+        batch = Samples(augment(data.inputs(idx), torch.Generator().manual_seed(s.seed * 1_000_003 + step)),
                         data.continuous[idx], data.discrete[idx], data.yaw[idx])
         opt.zero_grad()
         terms = loss_terms(net(batch.masks), batch)
@@ -168,7 +171,7 @@ def evaluate(net: ProposalNet, data: Samples) -> dict:
     from ipm.proposals.net import YAW_BINS
 
     net.eval()
-    out = net(data.masks)
+    out = net(data.inputs())
     heads = {}
     for j, (name, _, _) in enumerate(net.config.discrete):
         truth = data.discrete[:, j]
