@@ -318,6 +318,15 @@ def test_proposal_settings_that_cannot_apply_are_refused_before_a_run_folder(tmp
         assert not (tmp_path / "run").exists()
 
 
+def test_training_settings_out_of_range_are_refused_with_one_line(tmp_path, capsys):
+    for extra, message in [(["--workers", "0"], "--workers: expected 1 to 256 processes, got 0"),
+                           (["--checkpoint-every", "0"], "--checkpoint-every: expected at least 1"),
+                           (["--samples", "0"], "samples: expected an integer from 1")]:
+        code, _, err = run_cli(["train-proposals", "dishes", "-o", str(tmp_path / "w.npz"), *extra], capsys)
+        assert code == 2 and err.count("\n") == 1 and message in err, err
+        assert not list(tmp_path.iterdir())
+
+
 def test_learned_starts_keep_the_pose_when_it_is_held(tmp_path, capsys):
     """With --no-pose the proposals are evaluated where the start stands: no look rescales or moves them."""
     masks = tmp_path / "m"
