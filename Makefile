@@ -65,7 +65,7 @@ table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside t
 weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the package (about a minute on 2 cores)
 	$(BIN)/ipm train-subdivision -o ipm/subdiv/weights/neural_dishes.npz --pairs 32 --steps 1500 --seed 0
 
-proposals: $(STAMP) ## retrain the proposal networks shipped in the package (ipm fit --init; 8 and 13 minutes on a busy 2-core machine)
+proposals: $(STAMP) ## retrain the proposal networks shipped in the package (ipm fit --init; 17 and 16 minutes on a busy 2-core machine)
 	$(BIN)/ipm train-proposals dishes -o ipm/proposals/weights/dishes.npz --samples 45000 --steps 8000 --workers 2 --seed 0
 	$(BIN)/ipm train-proposals building -o ipm/proposals/weights/building.npz --samples 45000 --steps 8000 --workers 2 --seed 0
 
