@@ -11,6 +11,9 @@ one thread when other processes take the cores.
 
 Results do not depend on the thread count within the fits' tolerance (``benchmarks/perturbation.py``);
 bit for bit they may.
+
+Work spread over processes (bench cells, a proposal network's training renders) runs in :func:`process_pool`,
+whose workers die with their parent.
 """
 
 from __future__ import annotations
