@@ -65,9 +65,11 @@ def _score(exp_path: str, exp, name: str, proposer, gen, rounds: int) -> dict[st
     held = target_masks(exp_path, name, None)
     out = {}
     for v in VARIANTS:
-        prob = Problem(gen, MaskTarget(masks, cams_f), FitSettings(budget=2 * rounds, seed=0, init="presets"))
+        p = _variant(v, guess, target.truth, gen)
+        prob = Problem(gen, MaskTarget(masks, cams_f), FitSettings(budget=2 * rounds, seed=0, init="presets"),
+                       reference=p.values)
         ev = Evaluator(prob.objective, 2 * rounds)
-        x, d = proposed(prob, [_variant(v, guess, target.truth, gen)], prob.x0())[0]
+        x, d = proposed(prob, [p], prob.x0())[0]
         x = placed(prob, ev, x, d, rounds)
         mesh = prob.mesh_world(x.to(torch.float64), d).detach()
         mesh = TriMesh(mesh.verts.double(), mesh.faces)

@@ -97,6 +97,34 @@ def test_sizes_per_count_keep_the_total_when_the_count_changes():
     assert float(back[0]) == pytest.approx(2.5)
 
 
+
+def test_sizes_per_count_are_held_for_the_reference_counts():
+    """The default start (5 storeys, 4 sections) cannot hold a 27-storey block's 3 m storeys nor its 10 sections of
+    20 m: every storey comes out at the 2.2 m bound, the facade at 160 m. Held for the block's own counts (a learned proposal's), the block decodes to itself and
+    other counts keep the total about the reference."""
+    from ipm.optim.pose import proposed
+    from ipm.proposals.propose import Proposal
+
+    g = get_generator("building")
+    m = torch.ones(1, 16, 16)
+    m[0, 0, 0] = 0
+    block = {**g.values(None, {}), "floors": 27, "floor_height": 3.0, "sections": 10, "section_width": 20.0}
+    default = Problem(g, _mask_target(m), FitSettings())
+    x, d = proposed(default, [Proposal(block, 1.0, 0.0)], default.x0())[0]
+    assert default.values(x, d)["floor_height"] == 2.2
+    assert default.values(x, d)["section_width"] == pytest.approx(16.0)  # 40 m held for 4 sections
+    prob = Problem(g, _mask_target(m), FitSettings(), reference=block)
+    x, d = proposed(prob, [Proposal(block, 1.0, 0.0)], prob.x0())[0]
+    got = prob.values(x, d)
+    assert (got["floors"], got["sections"]) == (27, 10)
+    assert got["floor_height"] == pytest.approx(3.0) and got["section_width"] == pytest.approx(20.0)
+    assert prob.values(x, {**d, "floors": 30})["floor_height"] == pytest.approx(3.0 * 27 / 30)
+    # the start is held for the reference too: it decodes to itself where the reference is within the ratio
+    near = Problem(g, _mask_target(m), FitSettings(), reference={"floors": 6, "sections": 5})
+    assert near.values(near.x0(), near.d0)["floor_height"] == pytest.approx(2.8)
+    assert near.frame(near.d0)[1] == pytest.approx(default.frame(default.d0)[1])
+    assert prob.values(prob.x0(), prob.d0)["floor_height"] == 5.0  # 27 storeys: the start's 5 are squeezed
+
 def _mask_target(m):
     from ipm.optim.targets import MaskTarget
 

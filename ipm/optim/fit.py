@@ -84,11 +84,11 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
     space.outline = outline
 
 
-def learned_proposals(prob: Problem, settings: FitSettings) -> list:
+def learned_proposals(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> list:
     """The proposals of the generator's network for the first view's mask (:mod:`ipm.proposals`), where
     ``settings.init`` asks for them (:func:`check_proposals`); none otherwise."""
-    proposer = check_proposals(prob.gen, prob.target, settings)
-    return [] if proposer is None else proposer.propose(prob.target.masks[0], prob.target.cameras[0])
+    proposer = check_proposals(gen, target, settings)
+    return [] if proposer is None else proposer.propose(target.masks[0], target.cameras[0])
 
 
 def check_proposals(gen, target, settings: FitSettings):
@@ -136,13 +136,16 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     """Search, then polish; returns (FitResult, the problem, the best point ``{"x", "discrete"}``)."""
     import nlopt
 
-    prob = Problem(gen, target, settings)
+    proposals = learned_proposals(gen, target, settings)
+    # sizes per count are held for the most probable proposal's counts (Problem.carry), so that it is fitted
+    # as the network proposed it, not squeezed into the sizes the default counts allow
+    prob = Problem(gen, target, settings, reference=proposals[0].values if proposals else None)
     rng = np.random.default_rng(settings.seed)
     torch.manual_seed(settings.seed)
     nlopt.srand(settings.seed)  # GN_CRS2_LM, GN_ESCH and GN_ISRES are stochastic
 
     ev = Evaluator(prob.objective, settings.budget, sink=sink, replay=replay, progress=progress)
-    starts, presets, free_yaw, start_info = _starts(prob, ev, settings)
+    starts, presets, free_yaw, start_info = _starts(prob, ev, settings, proposals)
     searched = {p.name for p in prob.searched}
 
     def pose_search(x: torch.Tensor, d: dict) -> torch.Tensor:
@@ -213,10 +216,10 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     return dataclasses.replace(result, start=start_info), prob, best
 
 
-def _starts(prob: Problem, ev: Evaluator, settings: FitSettings) -> tuple[list, list, bool, dict]:
+def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list) -> tuple[list, list, bool, dict]:
     """Where the search starts: (starts, presets, whether the yaw is free, what result.json says of it), from the
-    pose grid and the presets, the learned proposals, or both (``settings.init``)."""
-    proposals = learned_proposals(prob, settings)
+    pose grid and the presets, the learned ``proposals`` (:func:`learned_proposals`), or both
+    (``settings.init``)."""
     info: dict = {"init": settings.init if proposals else "presets"}
     if proposals:
         info["proposals"] = [{"discrete": {k: v for k, v in p.values.items() if k in prob.d0},

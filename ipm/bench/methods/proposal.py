@@ -52,7 +52,8 @@ def proposal(task: Task, s: ProposalSettings, budget: int, seed: int) -> Predict
     if not props:
         raise MethodFailed("proposal: the network proposed nothing")
     rounds = max(1, budget // 2)
-    prob = Problem(gen, MaskTarget(masks, cams), FitSettings(budget=2 * rounds, seed=seed, init="presets"))
+    prob = Problem(gen, MaskTarget(masks, cams), FitSettings(budget=2 * rounds, seed=seed, init="presets"),
+                   reference=props[0].values)
     ev = Evaluator(prob.objective, 2 * rounds)
     x, d = proposed(prob, props, prob.x0())[0]
     x = placed(prob, ev, x, d, rounds)
