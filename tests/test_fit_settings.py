@@ -42,7 +42,7 @@ BAD = {
     "part_cost": ("part_cost", [-0.01, INF, NAN, True]),
     "part_ratio": ("part_ratio", [0.0, -0.5, 1.5, INF, NAN, "half", True]),
     "anchor": ("anchor", [-0.01, INF, NAN, "strong", True]),
-    "init": ("init", ["sometimes", 1, None, True]),
+    "init": ("init", ["sometimes", 1, True]),
     "proposals": ("proposals", [3, True, ["w.npz"]]),
     "subdivide": ("subdivision", ["butterfly", 1, True]),
     "subdivide_levels": ("subdivision levels", [0, 4, 1.5, True, "2"]),

@@ -54,10 +54,10 @@ ImageWeightOpt = Annotated[float, typer.Option("--image-weight", help="weight of
 CameraOpt = Annotated[str, typer.Option(help="known (cameras.json) or fit (recover elevation, "
     "distance, FOV)")]
 DiscreteOpt = Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")]
-InitOpt = Annotated[str, typer.Option(help=(
+InitOpt = Annotated[str | None, typer.Option(help=(
     "where the search starts: presets (the pose grid and the generator's presets), learned (a trained network's "
     "proposals from the first view's mask: ipm list proposals; the pose grid runs on the most probable) or both "
-    "(the proposals ranked with the presets)"))]
+    "(the proposals ranked with the presets); default: the generator's (building: both; others: presets)"))]
 ProposalsOpt = Annotated[Path | None, typer.Option(help=(
     "proposal weights (ipm train-proposals); default: those shipped for the generator"))]
 BudgetOpt = Annotated[int | None, typer.Option(help=(
@@ -137,7 +137,7 @@ def register(app: typer.Typer) -> None:
         image_weight: ImageWeightOpt = 1.0,
         camera: CameraOpt = "known",
         discrete: DiscreteOpt = "memetic",
-        init: InitOpt = "presets",
+        init: InitOpt = None,
         proposals: ProposalsOpt = None,
         budget: BudgetOpt = None,
         seed: SeedOpt = 0,

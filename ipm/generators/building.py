@@ -411,6 +411,9 @@ class BuildingGenerator(Generator):
     description = ("multi-storey panel block with wings and roof-top boxes: walls with window openings, "
                    "windows, balconies, doors, roofs")
     parts = GROUPS
+    # fits start from the presets and the learned proposals ranked together (FitSettings.init): on the tune split's
+    # single-view buildings ...
+    init = "both"
 
     def __init__(self):
         self.spec = building_spec()

@@ -86,7 +86,7 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
 
 def learned_proposals(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> list:
     """The proposals of the generator's network for the first view's mask (:mod:`ipm.proposals`), where
-    ``settings.init`` asks for them (:func:`check_proposals`); none otherwise."""
+    :func:`init_mode` asks for them (:func:`check_proposals`); none otherwise."""
     proposer = check_proposals(gen, target, settings)
     return [] if proposer is None else proposer.propose(target.masks[0], target.cameras[0])
 
@@ -99,18 +99,28 @@ def check_proposals(gen, target, settings: FitSettings):
     from ipm.errors import InputError
     from ipm.proposals import load_proposer
 
-    if settings.init == "presets":
+    init = init_mode(gen, settings)
+    if init == "presets":
+        if settings.proposals is not None:
+            raise InputError(f"proposals: applies with init learned or both, got init presets ({gen.name}'s default) "
+                             f"and {settings.proposals!r}")
         return None
     if not isinstance(target, MaskTarget):
-        if settings.init == "learned":
+        if init == "learned":
             raise InputError("init learned: expected masks, a photo or a mask set (the proposals read a mask), got a "
                              "mesh target")
         return None
     proposer = load_proposer(gen, settings.proposals)
-    if proposer is None and settings.init == "learned":
+    if proposer is None and init == "learned":
         raise InputError(f"init learned: expected proposal weights for {gen.name}, got none; train them with ipm "
                          f"train-proposals {gen.name} -o W.npz and pass --proposals W.npz")
     return proposer
+
+
+def init_mode(gen, settings: FitSettings) -> str:
+    """Where a fit starts (``presets``, ``learned`` or ``both``): ``settings.init`` if given, else the generator's
+    ``init`` (``presets`` where it names none)."""
+    return settings.init or getattr(gen, "init", None) or "presets"
 
 
 def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float:
@@ -219,8 +229,9 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
 def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list) -> tuple[list, list, bool, dict]:
     """Where the search starts: (starts, presets, whether the yaw is free, what result.json says of it), from the
     pose grid and the presets, the learned ``proposals`` (:func:`learned_proposals`), or both
-    (``settings.init``)."""
-    info: dict = {"init": settings.init if proposals else "presets"}
+    (:func:`init_mode`)."""
+    init = init_mode(prob.gen, settings)
+    info: dict = {"init": init if proposals else "presets"}
     if proposals:
         info["proposals"] = [{"discrete": {k: v for k, v in p.values.items() if k in prob.d0},
                               "probability": round(p.probability, 4), "yaw_deg": round(p.yaw_deg, 1)}
@@ -228,7 +239,7 @@ def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list
     try:
         # presets are ranked for strategies that seed a population with them (memetic)
         rank = bool(getattr(STRATEGIES[settings.discrete], "uses_presets", False)) and bool(prob.searched)
-        if proposals and settings.init == "learned":
+        if proposals and init == "learned":
             starts, presets, free_yaw = learned_starts(prob, ev, proposals)
         else:
             starts, presets, free_yaw = initial_starts(prob, ev, rank=rank, proposals=proposals)

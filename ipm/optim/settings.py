@@ -28,8 +28,10 @@ ANCHOR = 0.02
 CameraMode = Literal["known", "fit"]
 CAMERA_MODES: tuple[str, ...] = get_args(CameraMode)
 # where a fit starts (ipm.optim.pose): the pose grid and the presets, a trained network's proposals
-# (ipm.proposals), or both (the proposals ranked with the presets). The default stays "presets": on the public
-# K = 1 targets "learned" gains on average but loses on the targets a preset already fits (results/proposals.md)
+# (ipm.proposals), or both (the proposals ranked with the presets). The default (None) is the generator's
+# (Generator.init, init_mode): "both" for the building, whose single-view fits of the tune split gain from the
+# proposals, "presets" for the others (the dishes: under "both" the vase, the bottle and the pitcher of the tune
+# split end at a lower loss and a lower held-out IoU; results/proposals.md)
 InitMode = Literal["both", "learned", "presets"]
 INIT_MODES: tuple[str, ...] = get_args(InitMode)
 # how SDF generators' silhouettes are rendered (ipm.optim.shapes.SdfShape): "mesh", a differentiable marching-
@@ -59,7 +61,7 @@ class FitSettings:
     # soft rasterizer blur; 0 = the renderer's default for the image size
     sigma: Annotated[float, Meta(ge=0, extra={"noun": "a blur"})] = 0.0
     preset: str | None = None        # start from this preset (default: the generator's defaults)
-    init: InitMode = "presets"
+    init: InitMode | None = None     # None: the generator's (init_mode)
     # a proposal network's weights file (ipm train-proposals); None: the weights shipped for the generator
     proposals: str | None = None
     # continuous parameters to fit (default: all)
@@ -152,7 +154,7 @@ class FitSettings:
             if not isinstance(s, cls):
                 raise InputError(f"{name}: expected a table of {name} settings, got {s!r}")
             _check_nested(name, cls, _plain(s))
-        if self.proposals is not None and self.init == "presets":
+        if self.proposals is not None and self.init == "presets":  # a generator's own "presets": check_proposals
             raise InputError(f"proposals: applies with init learned or both, got init presets and {self.proposals!r}")
         if self.transport.dustbin is not None and not any(n == "sinkhorn" for _, n in terms):
             raise InputError(f"transport dustbin: applies to a loss with a sinkhorn term, got loss {self.loss!r}")
