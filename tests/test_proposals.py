@@ -14,6 +14,7 @@ import torch
 
 from ipm.errors import InputError
 from ipm.generators import get_generator
+from ipm.optim.settings import FitSettings
 from ipm.proposals import load_proposer, shipped
 from ipm.proposals.data import Samples, augment, make_samples, render_sample, yaw_bin
 from ipm.proposals.encode import TRAIN_AZIMUTH, camera_azimuth, crop_box, encode_mask
@@ -52,7 +53,6 @@ def test_a_sample_turned_by_a_yaw_is_what_the_fit_renders_at_that_yaw():
     """The training renders turn the shape the way the fit's pose does (a handle on the other side would not
     match): the fit's own mesh at yaw 70, cropped, against the training render at yaw 70."""
     from ipm.optim.problem import Problem
-    from ipm.optim.settings import FitSettings
     from ipm.optim.targets import MaskTarget
     from ipm.render.raster import rasterize_mesh
 
@@ -344,3 +344,23 @@ def test_learned_starts_keep_the_pose_when_it_is_held(tmp_path, capsys):
     records = [json.loads(line) for line in (tmp_path / "run" / "trajectory.jsonl").read_text().splitlines()]
     learned = [r for r in records if r["phase"] == "init:learned"]
     assert learned and all(r["x"][-5:] == pytest.approx([0.5] * 5) for r in learned)  # the identity pose
+
+
+def test_where_a_fit_starts_by_default_is_the_generators():
+    """``init`` unset: the building's fits start from the presets and the shipped proposals together, the dishes'
+    from the presets; an explicit value wins; a weights file with a generator whose default is the presets is
+    refused as with an explicit ``--init presets``."""
+    from ipm.optim.fit import check_proposals, init_mode
+    from ipm.optim.targets import MaskTarget
+
+    building, dishes = get_generator("building"), get_generator("dishes")
+    assert init_mode(building, FitSettings()) == "both" and init_mode(dishes, FitSettings()) == "presets"
+    assert init_mode(building, FitSettings(init="presets")) == "presets"
+    assert init_mode(dishes, FitSettings(init="learned")) == "learned"
+    mask = torch.zeros(1, 8, 8)
+    mask[0, 2:6, 3:5] = 1
+    target = MaskTarget(mask, [orbit_camera(0.0, 20.0, 3.2, width=8, height=8)])
+    assert check_proposals(building, target, FitSettings()) is not None  # the shipped weights
+    assert check_proposals(building, target, FitSettings(init="presets")) is None
+    with pytest.raises(InputError, match="proposals: applies with init learned or both, got init presets"):
+        check_proposals(dishes, target, FitSettings(proposals="w.npz"))
