@@ -296,15 +296,16 @@ def editable_exports(out: Path) -> dict:
 
 def learned_start(out: Path, budget: int = 500) -> dict:
     """Issue #29: a real LoD2 house (:data:`ipm.data.DUTCH_HOUSE`) from one protocol view at 256 px, ``ipm.fit`` of
-    the building generator from the ``house2`` preset (``init="presets"``) and from the shipped network's
-    proposals (``init="learned"``), the same budget and seed; each scored as protocol v2 scores a K = 1 cell
-    (scaled about the eye, held-out IoU over the 16 held-out views)."""
+    the building generator from the ``house2`` preset (``init="presets"``), from the shipped network's proposals
+    (``init="learned"``) and from both ranked together (``init="both"``, the building's default), the same budget and
+    seed; each scored as protocol v2 scores a K = 1 cell (scaled about the eye, held-out IoU over the 16 held-out
+    views)."""
     import ipm
 
     folder = out / "learned_start"
     target, score = _one_view_target(D.DUTCH_HOUSE, folder / "masks")
     rows = {}
-    for init in ("presets", "learned"):
+    for init in ("presets", "learned", "both"):
         result = ipm.fit("building", masks=folder / "masks", preset="house2", budget=budget, seed=0, init=init,
                          run_dir=folder / init)
         rows[init] = {"heldout_iou": score(result.mesh()),

@@ -61,8 +61,8 @@ def register(app: typer.Typer) -> None:
               f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
         print("editable exports (#31): the armchair's tree as an exact CSG mesh, USD and CAD programs ...", flush=True)
         _print_exports(S.editable_exports(out))
-        print("learned proposals (#29): a real LoD2 house from one view, started from a preset and from the "
-              "network's guesses ...", flush=True)
+        print("learned proposals (#29): a real LoD2 house from one view, started from a preset, from the network's "
+              "guesses and from both (the building's default) ...", flush=True)
         for init, r in S.learned_start(out).items():
             counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
             print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
@@ -83,8 +83,8 @@ def register(app: typer.Typer) -> None:
         print("  subdivision/mug_{midpoint,loop,neural}.ply and scores.json (distances to the finer surface)")
         print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
               "bottle_revolved.obj; outline.png and outline.svg")
-        print("  learned_start/: presets/ and learned/ run folders of the house's two fits, scores.json; teapot/ and "
-              "parsimony/ alike")
+        print("  learned_start/: presets/, learned/ and both/ run folders of the house's three fits, scores.json; "
+              "teapot/ and parsimony/ alike")
         print("  exports/: armchair_exact.obj (exact CSG), armchair.usda (parameters as customData), armchair.scad and "
               "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
