@@ -124,6 +124,12 @@ def test_sizes_per_count_are_held_for_the_reference_counts():
     assert near.values(near.x0(), near.d0)["floor_height"] == pytest.approx(2.8)
     assert near.frame(near.d0)[1] == pytest.approx(default.frame(default.d0)[1])
     assert prob.values(prob.x0(), prob.d0)["floor_height"] == 5.0  # 27 storeys: the start's 5 are squeezed
+    # a count the fit does not search, or searches in a narrower range, is held for what it can be
+    fixed = Problem(g, _mask_target(m), FitSettings(fix={"floors": 5}), reference=block)
+    assert fixed.ref == {"floors": 5, "sections": 10}
+    narrow = Problem(g, _mask_target(m), FitSettings(ranges={"floors": [1, 12]}, discrete="enumerate"),
+                     reference=block)
+    assert narrow.ref["floors"] == 12
 
 def _mask_target(m):
     from ipm.optim.targets import MaskTarget

@@ -105,7 +105,10 @@ class Problem:
         self.d0 = self.clamp_discrete(self.d0)
         # the counts the search holds sizes per count for (carry): the start's unless given; the start's
         # sizes are then held as they would be for the reference counts
-        self.ref = {p.per: int((reference or {}).get(p.per, self.d0[p.per])) for _, p in self._per}
+        # (a count the fit does not search stays at the start's, so its sizes are held for it)
+        searched = {q.name for q in self.searched}
+        ref = {k: int(v) for k, v in (reference or {}).items() if k in searched}
+        self.ref = self.clamp_discrete({p.per: ref.get(p.per, self.d0[p.per]) for _, p in self._per})
         self.theta0 = self.carry(self.theta0, self.d0, inverse=True)
         if settings.subdivide is not None and not self.shape.has_faces:
             raise InputError(f"subdivision: applies to mesh generators; {gen.name} is an SDF generator")
