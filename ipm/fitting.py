@@ -87,7 +87,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
     from ipm.io.fit_targets import TargetFiles, load_target
     from ipm.io.runs import SETTINGS, TRAJECTORY, Trajectory, final_files, first_run, write_json
     from ipm.optim.evaluator import ReplayMismatch
-    from ipm.optim.fit import check_proposals, hard_scores, run_fit
+    from ipm.optim.fit import check_proposals, hard_scores, init_mode, run_fit
     from ipm.optim.problem import Problem
 
     replay: list[dict] = []
@@ -106,6 +106,8 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
                             image=_absolute(image), mask=_absolute(mask), intrinsics=_absolute(intrinsics),
                             box=None if box is None else tuple(int(v) for v in box), size=photo_size, ground=ground)
         cfg = _new_settings(settings, files)
+        # the run records where it started, not "the generator's default", which a later version may change
+        cfg = replace(cfg, init=init_mode(gen, cfg))
     cfg.check()
     target, photo = load_target(files, camera=cfg.camera, device=device)
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written

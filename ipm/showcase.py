@@ -12,8 +12,8 @@ makes the same library calls a user makes and returns its numbers; the command p
 4. :func:`curves_showcase`: a real bottle's side silhouette fitted by a 2D profile (``ipm.fitting.fit_shape``),
    revolved and scored against the scan; its outline vectorized into an SVG.
 5. :func:`structure_showcase`: the real armchair's tree searched from its mesh (``ipm.fitting.fit_structure``).
-6. :func:`learned_start`: a real LoD2 house from one view, fitted from the presets and from the shipped proposal
-   network's guesses (``init="learned"``) at the same budget.
+6. :func:`learned_start`: a real LoD2 house from one view, fitted from the presets, from the shipped proposal
+   network's guesses (``init="learned"``) and from both (the building's default) at the same budget.
    :func:`teapot_spout`: a real teapot from one view, with the dishes generator's spout tube and lid knob searched,
    and each held off. :func:`parsimony`: a real sugar bowl from one view, with the parsimony rule and without.
 7. :func:`sdf_showcase`: the shipped trees meshed, their Jacobians checked against float64 finite differences.

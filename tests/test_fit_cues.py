@@ -130,6 +130,9 @@ def test_sizes_per_count_are_held_for_the_reference_counts():
     narrow = Problem(g, _mask_target(m), FitSettings(ranges={"floors": [1, 12]}, discrete="enumerate"),
                      reference=block)
     assert narrow.ref["floors"] == 12
+    # a size the fit does not move is what it was told, at every count
+    held = Problem(g, _mask_target(m), FitSettings(fix={"floor_height": 3.0}), reference=block)
+    assert all(held.values(held.x0(), {"floors": f})["floor_height"] == 3.0 for f in (2, 5, 27))
 
 def _mask_target(m):
     from ipm.optim.targets import MaskTarget

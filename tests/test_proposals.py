@@ -204,6 +204,11 @@ def test_a_fit_started_from_proposals_says_so(tmp_path, capsys):
                             "-o", str(run)], capsys)
     assert code == 0, err
     assert json.loads((run / "result.json").read_text())["start"] == {"init": "presets"}
+    # without --init the run records the generator's start, not "the default", which a later version may change
+    run = tmp_path / "run_default"
+    code, _, err = run_cli(["fit", "dishes", "--masks", str(masks), "--budget", "5", "-o", str(run)], capsys)
+    assert code == 0, err
+    assert json.loads((run / "settings.json").read_text())["settings"]["init"] == "presets"
 
 
 @pytest.mark.parametrize("name", sorted(shipped()))
@@ -364,3 +369,13 @@ def test_where_a_fit_starts_by_default_is_the_generators():
     assert check_proposals(building, target, FitSettings(init="presets")) is None
     with pytest.raises(InputError, match="proposals: applies with init learned or both, got init presets"):
         check_proposals(dishes, target, FitSettings(proposals="w.npz"))
+
+
+def test_a_generator_default_start_that_is_no_mode_is_refused():
+    from ipm.optim.fit import init_mode
+
+    class Odd:
+        name, init = "odd", "learn"
+
+    with pytest.raises(InputError, match=r"odd: init: expected one of both, learned, presets as the generator's default"):
+        init_mode(Odd(), FitSettings())

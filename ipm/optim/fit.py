@@ -33,7 +33,7 @@ from ipm.optim.pose import (
     yaw_turns,
 )
 from ipm.optim.problem import Problem
-from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, FitSettings
+from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, FitSettings, InitMode
 from ipm.optim.shapes import POLISH_SIGMA_FACTOR
 from ipm.optim.strategies import STRATEGIES
 from ipm.optim.targets import MaskTarget, MeshTarget
@@ -120,7 +120,15 @@ def check_proposals(gen, target, settings: FitSettings):
 def init_mode(gen, settings: FitSettings) -> str:
     """Where a fit starts (``presets``, ``learned`` or ``both``): ``settings.init`` if given, else the generator's
     ``init`` (``presets`` where it names none)."""
-    return settings.init or getattr(gen, "init", None) or "presets"
+    from typing import get_args
+
+    from ipm.errors import InputError
+
+    init = settings.init or getattr(gen, "init", None) or "presets"
+    if init not in get_args(InitMode):
+        raise InputError(f"{gen.name}: init: expected one of {', '.join(get_args(InitMode))} as the generator's "
+                         f"default start, got {init!r}")
+    return init
 
 
 def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float:
@@ -233,6 +241,8 @@ def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list
     init = init_mode(prob.gen, settings)
     info: dict = {"init": init if proposals else "presets"}
     if proposals:
+        # the counts the search holds sizes per count for (Problem.carry): every x of the trajectory depends on them
+        info["reference"] = dict(prob.ref)
         info["proposals"] = [{"discrete": {k: v for k, v in p.values.items() if k in prob.d0},
                               "probability": round(p.probability, 4), "yaw_deg": round(p.yaw_deg, 1)}
                              for p in proposals]

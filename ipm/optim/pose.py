@@ -242,7 +242,7 @@ def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tenso
             continue
         vals = prob.gen.values(name, prob.s.fix)
         th, dd = prob.gen.split(vals, torch.float64)
-        th = prob.carry(th, dd, inverse=True)  # the search holds sizes per count for the starting counts
+        th = prob.carry(th, dd, inverse=True)  # the search holds sizes per count for its reference counts
         out.append((torch.cat([prob.encode_params(th), x_best[prob.n:]]), dict(dd)))
     return out
 

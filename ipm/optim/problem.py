@@ -99,7 +99,7 @@ class Problem:
         self.theta0, self.d0 = gen.split(self.start, torch.float64)
         # sizes per a discrete count (see carry), with their index in theta
         self._per = [(i, p) for i, p in enumerate(gen.spec.continuous)
-                     if p.per is not None and p.per in self.d0]
+                     if p.per is not None and p.per in self.d0 and i in self.free]
         self.lo, self.hi = gen.spec.lower(), gen.spec.upper()
         self.searched = _searched(gen, settings)
         self.d0 = self.clamp_discrete(self.d0)
@@ -181,7 +181,7 @@ class Problem:
 
     def decode(self, x: torch.Tensor):
         """-> theta (n_all,), translation (3,), yaw (deg), scale, camera triple or None (all torch). theta is
-        as the search holds it, for the starting discrete values: see :meth:`carry`."""
+        as the search holds it, for the reference counts (:attr:`ref`): see :meth:`carry`."""
         return E.decode(self.layout, x, self.theta0)
 
     def carry(self, theta: torch.Tensor, discrete: Mapping[str, int], inverse: bool = False) -> torch.Tensor:
@@ -191,10 +191,12 @@ class Problem:
         ``reference count / count`` here (clamped to its bounds), so that a candidate with another count
         keeps the total (9 floors start as tall as the 7 they replace, and the part labels, not the outline,
         tell them apart). The search holds the size within its bounds, so only counts within their ratio
-        (2.3 for a storey: 2.2 to 5 m) of the reference reach every size: 27 storeys held for the default 2
-        are all 2.2 m high (the building's truth posed from its one view: held-out IoU 0.80 for 2, 0.89 held
-        for its own counts, results/proposal_ablation.md). ``inverse``: the other way, for encoding a theta
-        of ``discrete``. Differentiable; the identity without such sizes."""
+        (2.3 for a storey: 2.2 to 5 m) of the reference reach every size: 27 storeys of 3 m held for the
+        default start's 5 are all 2.2 m high (the building's true values posed from one view: held-out IoU
+        0.80 held for the start's counts, 0.89 for their own, results/proposal_ablation.md), and the other way
+        round, with a reference of 9 storeys a 2-storey preset's come out at the 5 m bound. Sizes the fit does
+        not move (fixed, held) are left as they are. ``inverse``: the other way, for encoding a theta of
+        ``discrete``. Differentiable; the identity without such sizes."""
         d = {**self.d0, **discrete}
         out = theta
         for i, p in self._per:
