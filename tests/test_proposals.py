@@ -379,3 +379,38 @@ def test_a_generator_default_start_that_is_no_mode_is_refused():
 
     with pytest.raises(InputError, match=r"odd: init: expected one of both, learned, presets as the generator's default"):
         init_mode(Odd(), FitSettings())
+
+
+_HEADS_DIGEST = """
+import hashlib, sys, torch
+from ipm.generators import get_generator
+from ipm.proposals import load_proposer
+h = hashlib.sha256()
+for g in ("building", "dishes"):
+    proposer = load_proposer(get_generator(g), None)
+    for i in range(4):
+        m = torch.zeros(120, 100)
+        m[60 - 10 - 8 * i:60 + 10 + 8 * i, 20 + 3 * i:80 - 2 * i] = 1
+        out = proposer.heads(m)
+        for t in [out["mean"], out["log_std"], *out["discrete"], out["yaw"]]:
+            h.update(t.numpy().tobytes())
+print(h.hexdigest())
+"""
+
+
+def test_proposals_are_the_same_bits_whatever_cpu_kernels_torch_picks():
+    """torch picks its CPU kernels at run time; ``ATEN_CPU_CAPABILITY=default`` forces the plain ones another CPU
+    would run. The shipped networks' outputs (float64 inference rounded to float32) come out bit for bit the same
+    under both, and with two threads: a fit that starts from them starts in the same place on every machine."""
+    import os
+    import subprocess
+    import sys
+
+    digests = set()
+    for env in ({}, {"ATEN_CPU_CAPABILITY": "default"}, {"IPM_THREADS": "2", "OMP_NUM_THREADS": "2"}):
+        code = _HEADS_DIGEST if "IPM_THREADS" not in env else "import torch; torch.set_num_threads(2)\n" + _HEADS_DIGEST
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300,
+                              env={**os.environ, **env})
+        assert proc.returncode == 0, proc.stderr
+        digests.add(proc.stdout.strip())
+    assert len(digests) == 1, digests

@@ -33,14 +33,15 @@ def crop_box(mask: torch.Tensor, margin: float = MARGIN) -> tuple[float, float, 
     return 0.5 * (x0 + x1), 0.5 * (y0 + y1), side
 
 
-def encode_mask(mask: torch.Tensor, size: int = SIZE, box: tuple[float, float, float] | None = None) -> torch.Tensor:
-    """``(1, size, size)`` float32 in [0, 1]: ``mask (H, W)`` cropped to :func:`crop_box` (or ``box``) and
+def encode_mask(mask: torch.Tensor, size: int = SIZE, box: tuple[float, float, float] | None = None,
+                dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """``(1, size, size)`` of ``dtype`` in [0, 1]: ``mask (H, W)`` cropped to :func:`crop_box` (or ``box``) and
     resampled bilinearly (pixels outside the image are background)."""
-    m = mask.detach().to(torch.float32)
+    m = mask.detach().to(dtype)
     cx, cy, side = crop_box(m) if box is None else box
     H, W = m.shape
     # the crop's pixel centres in the normalized coordinates of grid_sample (align_corners=False)
-    t = (torch.arange(size, dtype=torch.float32) + 0.5) / size - 0.5
+    t = (torch.arange(size, dtype=dtype) + 0.5) / size - 0.5
     xs = (cx + t * side) / W * 2.0 - 1.0
     ys = (cy + t * side) / H * 2.0 - 1.0
     grid = torch.stack(torch.meshgrid(ys, xs, indexing="ij")[::-1], dim=-1)[None]

@@ -3,6 +3,7 @@ continuous values the network expects and the yaw it finds most likely, turned i
 
 from __future__ import annotations
 
+import copy
 import heapq
 import itertools
 from dataclasses import dataclass, field
@@ -29,16 +30,25 @@ class Proposal:
 
 
 class Proposer:
-    """A trained :class:`~ipm.proposals.net.ProposalNet` for generator ``gen``."""
+    """A trained :class:`~ipm.proposals.net.ProposalNet` for generator ``gen``.
+
+    Inference runs in float64 and its outputs are rounded to float32: torch picks its CPU kernels at run time (AVX2,
+    AVX-512, none), and in float32 their last bits differ (the shipped networks' outputs for the same masks hashed
+    three ways under ``ATEN_CPU_CAPABILITY`` default, avx2 and this machine's avx512); a fit that starts from the
+    proposals would then start elsewhere on another machine. Float64's differences lie some nine digits below
+    float32's rounding, so the rounded outputs agree but for a value within them of a rounding boundary."""
 
     def __init__(self, net: ProposalNet, gen, source: str = ""):
         self.net, self.gen, self.source = net, gen, source
+        self._net64 = copy.deepcopy(net).double()
 
     @torch.no_grad()
     def heads(self, mask: torch.Tensor) -> dict:
-        """The network's outputs for one mask ``(H, W)`` (batch of one, float32, on the CPU)."""
-        x = encode_mask(mask.detach().cpu(), self.net.config.size)[None]
-        return self.net(x)
+        """The network's outputs for one mask ``(H, W)`` (batch of one, float32, on the CPU; see the class
+        docstring)."""
+        x = encode_mask(mask.detach().cpu(), self.net.config.size, dtype=torch.float64)[None]
+        out = self._net64(x)
+        return {k: [t.float() for t in v] if isinstance(v, list) else v.float() for k, v in out.items()}
 
     def propose(self, mask: torch.Tensor, camera: Camera, k: int = MAX_PROPOSALS) -> list[Proposal]:
         """At most ``k`` proposals for the object that ``mask (H, W)`` shows in ``camera``, most probable first,
