@@ -413,7 +413,7 @@ class BuildingGenerator(Generator):
     parts = GROUPS
     # fits start from the presets and the learned proposals ranked together (FitSettings.init): on the tune split's
     # nine buildings (results/table1) the mean held-out IoU went 0.845 -> 0.901 at K = 1, 0.890 -> 0.918 at K = 2,
-    # 0.938 -> 0.936 at K = 4 against "presets"
+    # 0.938 -> 0.937 at K = 4 against "presets"
     init = "both"
 
     def __init__(self):
