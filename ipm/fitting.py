@@ -106,8 +106,7 @@ def fit(generator=None, *, masks: str | Path | None = None, target_mesh: str | P
                             image=_absolute(image), mask=_absolute(mask), intrinsics=_absolute(intrinsics),
                             box=None if box is None else tuple(int(v) for v in box), size=photo_size, ground=ground)
         cfg = _new_settings(settings, files)
-        # the run records where it started, not "the generator's default", which a later version may change
-        cfg = replace(cfg, init=init_mode(gen, cfg))
+        cfg = replace(cfg, init=init_mode(gen, cfg))  # where it started, not "the default" a later version may change
     cfg.check()
     target, photo = load_target(files, camera=cfg.camera, device=device)
     Problem(gen, target, cfg)  # settings that do not suit this generator fail here, before any file is written

@@ -91,6 +91,14 @@ def learned_proposals(gen, target: MaskTarget | MeshTarget, settings: FitSetting
     return [] if proposer is None else proposer.propose(target.masks[0], target.cameras[0])
 
 
+def fit_problem(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> tuple[Problem, list]:
+    """The fit's problem and the learned proposals it starts from (:func:`learned_proposals`): sizes per count are
+    held for the most probable proposal's counts (``Problem(reference=...)``), so that it is fitted as the network
+    proposed it, not squeezed into the sizes the start's counts allow."""
+    proposals = learned_proposals(gen, target, settings)
+    return Problem(gen, target, settings, reference=proposals[0].values if proposals else None), proposals
+
+
 def check_proposals(gen, target, settings: FitSettings):
     """The proposer a fit with ``settings`` uses (None for ``init = "presets"`` and for ``"both"`` without weights
     or with a mesh target), its weights read and checked: ``InputError`` for ``"learned"`` with a mesh target or
@@ -154,10 +162,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     """Search, then polish; returns (FitResult, the problem, the best point ``{"x", "discrete"}``)."""
     import nlopt
 
-    proposals = learned_proposals(gen, target, settings)
-    # sizes per count are held for the most probable proposal's counts (Problem.carry), so that it is fitted
-    # as the network proposed it, not squeezed into the sizes the default counts allow
-    prob = Problem(gen, target, settings, reference=proposals[0].values if proposals else None)
+    prob, proposals = fit_problem(gen, target, settings)
     rng = np.random.default_rng(settings.seed)
     torch.manual_seed(settings.seed)
     nlopt.srand(settings.seed)  # GN_CRS2_LM, GN_ESCH and GN_ISRES are stochastic

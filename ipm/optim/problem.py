@@ -103,9 +103,8 @@ class Problem:
         self.lo, self.hi = gen.spec.lower(), gen.spec.upper()
         self.searched = _searched(gen, settings)
         self.d0 = self.clamp_discrete(self.d0)
-        # the counts the search holds sizes per count for (carry): the start's unless given; the start's
-        # sizes are then held as they would be for the reference counts
-        # (a count the fit does not search stays at the start's, so its sizes are held for it)
+        # the counts the search holds sizes per count for (carry): the start's, or the reference's where the fit
+        # searches that count; the start's sizes are then held as they would be for those counts
         searched = {q.name for q in self.searched}
         ref = {k: int(v) for k, v in (reference or {}).items() if k in searched}
         self.ref = self.clamp_discrete({p.per: ref.get(p.per, self.d0[p.per]) for _, p in self._per})
