@@ -15,7 +15,8 @@ row (:func:`ipm.optim.pose.placed`, as the method does now at table_proposals' b
 
 Each variant's sizes per count are held for its own counts (``Problem(reference=...)``, as the ``proposal`` method
 and fits from proposals hold them): held for the default start's counts instead, the building's true values scored
-0.801 (three looks), most of the gap to 1 being storeys squeezed to the height bound (:meth:`ipm.optim.problem.Problem.carry`).
+0.801 (three looks), most of the gap to 1 being storeys squeezed to the height bound
+(:meth:`ipm.optim.problem.Problem.carry`).
 
 ``python -m benchmarks.proposal_ablation`` (a few minutes, one thread) writes ``results/proposal_ablation.md``.
 """

@@ -414,3 +414,71 @@ def test_proposals_are_the_same_bits_whatever_cpu_kernels_torch_picks():
         assert proc.returncode == 0, proc.stderr
         digests.add(proc.stdout.strip())
     assert len(digests) == 1, digests
+
+
+def _outputs(mean, std, discrete, yaw) -> dict:
+    """Network outputs of one view (batch of one), as :meth:`ipm.proposals.Proposer.heads` gives them."""
+    t = lambda v: torch.tensor([v], dtype=torch.float32)  # noqa: E731
+    return {"mean": t(mean), "log_std": t([math.log(s) for s in std]),
+            "discrete": [t([math.log(p) for p in head]) for head in discrete], "yaw": t(yaw)}
+
+
+def test_views_are_fused_as_independent_evidence_of_one_object():
+    """Each discrete head's probabilities multiply over the views (a handle one view hides at 0.3 and another
+    shows at 0.9 comes out at 0.79), continuous means are weighted by their precisions, and the yaw is the peak of
+    the product of the views' yaw distributions turned into the world: of two views unsure between a yaw and its
+    half turn, the surer one decides, though the other alone would pick the half turn."""
+    from ipm.proposals.net import YAW_BINS
+    from ipm.proposals.propose import fuse
+
+    step = 360.0 / YAW_BINS
+    yaw_a = [-9.0] * YAW_BINS
+    yaw_a[4], yaw_a[4 + YAW_BINS // 2] = 0.0, -0.5   # world 60 (bin 4 of a camera at TRAIN_AZIMUTH) or 240
+    yaw_b = [-9.0] * YAW_BINS
+    yaw_b[4 - 6], yaw_b[4 - 6 + YAW_BINS // 2] = -0.05, 0.0   # a camera 90 degrees on: 60 is its bin -2, 240 its 10
+    cam_a, cam_b = orbit_camera(TRAIN_AZIMUTH, 25.0, 3.2), orbit_camera(TRAIN_AZIMUTH + 90.0, 25.0, 3.2)
+    assert 6 * step == pytest.approx(90.0)
+    a = _outputs([0.2, 0.5], [0.1, 0.2], [[0.7, 0.3]], yaw_a)
+    b = _outputs([0.6, 0.5], [0.2, 0.2], [[0.1, 0.9]], yaw_b)
+    mean, std, probs, yaw = fuse([(a, cam_a), (b, cam_b)])
+    assert mean.tolist() == pytest.approx([(0.2 / 0.01 + 0.6 / 0.04) / (1 / 0.01 + 1 / 0.04), 0.5], abs=1e-6)
+    assert std.tolist() == pytest.approx([(1 / 0.01 + 1 / 0.04) ** -0.5, 0.2 / math.sqrt(2)], abs=1e-6)
+    assert probs[0].tolist() == pytest.approx([0.07 / 0.34, 0.27 / 0.34], abs=1e-6)
+    assert yaw == pytest.approx(60.0, abs=0.5)
+    # alone, each view picks its own peak: the first 60, the second 240
+    from ipm.proposals.propose import summary
+
+    assert summary(a, cam_a)[3] % 360.0 == pytest.approx(60.0, abs=0.5)
+    assert summary(b, cam_b)[3] % 360.0 == pytest.approx(240.0, abs=0.5)
+
+
+def test_a_cameras_turn_moves_the_yaw_bins_between_bins_linearly():
+    from ipm.proposals.net import YAW_BINS
+    from ipm.proposals.propose import world_bins
+
+    step = 360.0 / YAW_BINS
+    logits = torch.randn(YAW_BINS, generator=torch.Generator().manual_seed(0)).tolist()
+    out = _outputs([0.5], [0.1], [], logits)
+    p = torch.softmax(torch.tensor(logits, dtype=torch.float32).double(), 0)
+    same = world_bins(out, orbit_camera(TRAIN_AZIMUTH, 25.0, 3.2))
+    assert torch.allclose(same, p, atol=1e-12)
+    one_bin = world_bins(out, orbit_camera(TRAIN_AZIMUTH + step, 25.0, 3.2))
+    assert torch.allclose(one_bin, torch.roll(p, 1), atol=1e-9)   # world bin j holds the camera's bin j - 1
+    half = world_bins(out, orbit_camera(TRAIN_AZIMUTH + step / 2, 25.0, 3.2))
+    assert torch.allclose(half, 0.5 * (p + torch.roll(p, 1)), atol=1e-9)
+    assert float(half.sum()) == pytest.approx(1.0)
+
+
+def test_one_view_is_proposed_as_before_and_more_views_sharpen_the_shipped_networks_guess():
+    """``propose_views`` with one view is ``propose``; the building's network shown the same box from two cameras
+    a quarter turn apart gives one answer with the discrete heads surer than either view's alone."""
+    proposer = load_proposer(get_generator("building"), None)
+    m = torch.zeros(120, 100)
+    m[30:90, 20:80] = 1
+    cams = [orbit_camera(TRAIN_AZIMUTH + 90.0 * k, 25.0, 3.2, width=100, height=120) for k in range(2)]
+    assert proposer.propose_views(m[None], cams[:1]) == proposer.propose(m, cams[0])
+    two = proposer.propose_views(torch.stack([m, m]), cams)
+    one = [proposer.propose(m, c)[0] for c in cams]
+    assert 1 <= len(two) <= 4
+    assert two[0].probability > max(p.probability for p in one)
+    assert -180.0 <= two[0].yaw_deg < 180.0

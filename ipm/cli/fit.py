@@ -56,7 +56,7 @@ CameraOpt = Annotated[str, typer.Option(help="known (cameras.json) or fit (recov
 DiscreteOpt = Annotated[str, typer.Option(help="discrete search strategy (ipm list strategies)")]
 InitOpt = Annotated[str | None, typer.Option(help=(
     "where the search starts: presets (the pose grid and the generator's presets), learned (a trained network's "
-    "proposals from the first view's mask: ipm list proposals; the pose grid runs on the most probable) or both "
+    "proposals from the masks: ipm list proposals; the pose grid runs on the most probable) or both "
     "(the proposals ranked with the presets); default: the generator's (building: both; others: presets)"))]
 ProposalsOpt = Annotated[Path | None, typer.Option(help=(
     "proposal weights (ipm train-proposals); default: those shipped for the generator"))]

@@ -85,10 +85,11 @@ def outline_first(prob: Problem, ev: Evaluator, space: D.Space, settings: FitSet
 
 
 def learned_proposals(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> list:
-    """The proposals of the generator's network for the first view's mask (:mod:`ipm.proposals`), where
-    :func:`init_mode` asks for them (:func:`check_proposals`); none otherwise."""
+    """The proposals of the generator's network for the target's masks (:mod:`ipm.proposals`; every view read on
+    its own, their outputs fused: :meth:`~ipm.proposals.Proposer.propose_views`), where :func:`init_mode` asks for
+    them (:func:`check_proposals`); none otherwise."""
     proposer = check_proposals(gen, target, settings)
-    return [] if proposer is None else proposer.propose(target.masks[0], target.cameras[0])
+    return [] if proposer is None else proposer.propose_views(target.masks, target.cameras)
 
 
 def fit_problem(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> tuple[Problem, list]:

@@ -53,15 +53,19 @@ class Proposer:
     def propose(self, mask: torch.Tensor, camera: Camera, k: int = MAX_PROPOSALS) -> list[Proposal]:
         """At most ``k`` proposals for the object that ``mask (H, W)`` shows in ``camera``, most probable first,
         taken until they hold :data:`MASS` of the discrete heads' probability."""
-        out = self.heads(mask)
-        spec = self.gen.spec
-        cont = [p for p in spec.params if p.continuous]
-        mean, std = out["mean"][0].double(), out["log_std"][0].double().exp()
+        return self.propose_views([mask], [camera], k)
+
+    def propose_views(self, masks, cameras, k: int = MAX_PROPOSALS) -> list[Proposal]:
+        """:meth:`propose` for an object seen in several views (``masks (K, H, W)`` in ``cameras``): the network
+        reads each view on its own and the views' outputs are taken as independent evidence of the same object
+        (:func:`fuse`: a product of the heads' distributions, the yaws turned into the world first); one view is
+        :meth:`propose`'s answer as it was."""
+        outs = [(self.heads(m), cam) for m, cam in zip(masks, cameras)]
+        mean, std, probs, yaw = summary(*outs[0]) if len(outs) == 1 else fuse(outs)
+        cont = [p for p in self.gen.spec.params if p.continuous]
         base = {p.name: float(p.lo + float(mean[i]) * (p.hi - p.lo)) for i, p in enumerate(cont)}
         stds = {p.name: float(std[i]) for i, p in enumerate(cont)}
-        probs = [torch.softmax(lg[0].double(), 0) for lg in out["discrete"]]
-        yaw_rel = peak_yaw(torch.softmax(out["yaw"][0].double(), 0))
-        yaw = (yaw_rel + camera_azimuth(camera) - TRAIN_AZIMUTH + 180.0) % 360.0 - 180.0
+        yaw = (yaw + 180.0) % 360.0 - 180.0
         names = [(name, lo) for name, lo, _ in self.net.config.discrete]
         picked, mass = [], 0.0
         for p, combo in _most_probable(probs, k):
@@ -72,6 +76,44 @@ class Proposer:
             if mass >= MASS:
                 break
         return picked
+
+
+View = tuple[torch.Tensor, torch.Tensor, list[torch.Tensor], float]
+
+
+def summary(out: dict, camera: Camera) -> View:
+    """One view's network outputs ``out`` (:meth:`Proposer.heads`) as (continuous means (normalized), their standard
+    deviations, each discrete head's probabilities, the world yaw in degrees (any turn)), all float64."""
+    mean, std = out["mean"][0].double(), out["log_std"][0].double().exp()
+    probs = [torch.softmax(lg[0].double(), 0) for lg in out["discrete"]]
+    yaw_rel = peak_yaw(torch.softmax(out["yaw"][0].double(), 0))
+    return mean, std, probs, yaw_rel + camera_azimuth(camera) - TRAIN_AZIMUTH
+
+
+def fuse(outs: list[tuple[dict, Camera]]) -> View:
+    """Several views' :func:`summary` of one object as one: each discrete head's probabilities multiplied over the
+    views (and normalized; a handle one view hides and another shows is kept at the showing view's odds), the
+    continuous means weighted by their precisions (standard deviation ``1 / sqrt(sum 1 / std^2)``), and the yaw at the
+    peak of the product of the views' yaw distributions, each turned from its camera into the world first (a body
+    that looks alike turned half way round in one view is told apart by another's)."""
+    views = [summary(out, cam) for out, cam in outs]
+    prec = torch.stack([1.0 / v[1] ** 2 for v in views])
+    mean = (torch.stack([v[0] for v in views]) * prec).sum(0) / prec.sum(0)
+    std = prec.sum(0).rsqrt()
+    probs = [torch.softmax(sum(torch.log(v[2][h]) for v in views), 0) for h in range(len(views[0][2]))]
+    yaw_p = torch.softmax(sum(torch.log(world_bins(out, cam).clamp_min(1e-300)) for out, cam in outs), 0)
+    return mean, std, probs, peak_yaw(yaw_p)
+
+
+def world_bins(out: dict, camera: Camera) -> torch.Tensor:
+    """One view's yaw probabilities ``(YAW_BINS,)`` on the world's bins (bin ``j`` at ``j * 360 / YAW_BINS``
+    degrees): the network's, relative to the camera, turned by the camera's azimuth (linearly between bins)."""
+    p = torch.softmax(out["yaw"][0].double(), 0)
+    width = 360.0 / YAW_BINS
+    f = (torch.arange(YAW_BINS, dtype=torch.float64) - (camera_azimuth(camera) - TRAIN_AZIMUTH) / width) % YAW_BINS
+    lo = f.floor().long()
+    t = f - lo
+    return (1.0 - t) * p[lo % YAW_BINS] + t * p[(lo + 1) % YAW_BINS]
 
 
 def peak_yaw(p: torch.Tensor) -> float:

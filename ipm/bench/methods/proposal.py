@@ -1,8 +1,9 @@
 """Bench method ``proposal``: a proposal network's best guess, scored with no refinement (issue #29's baseline).
 
-The network (:mod:`ipm.proposals`: the weights shipped for ``generator``, or ``weights``) reads the first input
-mask; its most probable proposal is posed at its own yaw, with the scale and translation that match its
-silhouettes' areas and centroids to the masks' (:func:`ipm.optim.pose.looks`, two evaluations; the cell's budget
+The network (:mod:`ipm.proposals`: the weights shipped for ``generator``, or ``weights``) reads every input
+mask, its outputs fused over the views (:meth:`~ipm.proposals.Proposer.propose_views`); its most probable
+proposal is posed at its own yaw, with the scale and translation that match its silhouettes' areas
+and centroids to the masks' (:func:`ipm.optim.pose.looks`, two evaluations; the cell's budget
 allows ``budget // 2`` looks in a row, :func:`ipm.optim.pose.placed`, each from where the last left the guess:
 one look leaves the shape off by the perspective it was first seen at, results/proposal_ablation.md), and nothing
 else: no parameter of the guess changes, no gradient step, no search. What the table shows beside ``ipm`` is how
@@ -48,7 +49,7 @@ def proposal(task: Task, s: ProposalSettings, budget: int, seed: int) -> Predict
     size = s.max_size if s.max_size is not None else max(task.masks.shape[1:])
     masks, cams = fit_views(task.masks, task.cameras, size, torch.float32)
     t0 = time.perf_counter()
-    props = proposer.propose(masks[0], cams[0], k=1)
+    props = proposer.propose_views(masks, cams, k=1)
     if not props:
         raise MethodFailed("proposal: the network proposed nothing")
     rounds = max(1, budget // 2)
