@@ -482,3 +482,19 @@ def test_one_view_is_proposed_as_before_and_more_views_sharpen_the_shipped_netwo
     assert 1 <= len(two) <= 4
     assert two[0].probability > max(p.probability for p in one)
     assert -180.0 <= two[0].yaw_deg < 180.0
+
+
+def test_a_fit_from_several_views_starts_from_all_of_their_proposals():
+    """The fit's proposals (``learned_proposals``) are those of every view fused, not the first view's."""
+    from ipm.optim.fit import learned_proposals
+    from ipm.optim.targets import MaskTarget
+
+    gen = get_generator("building")
+    proposer = load_proposer(gen, None)
+    masks = torch.zeros(2, 120, 100)
+    masks[0, 30:90, 20:80] = 1
+    masks[1, 40:90, 35:65] = 1
+    cams = [orbit_camera(TRAIN_AZIMUTH + 90.0 * k, 25.0, 3.2, width=100, height=120) for k in range(2)]
+    got = learned_proposals(gen, MaskTarget(masks, cams), FitSettings())
+    assert got == proposer.propose_views(masks, cams)
+    assert got != proposer.propose(masks[0], cams[0])
