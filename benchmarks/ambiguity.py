@@ -84,9 +84,11 @@ def _refine(prob, x: torch.Tensor, d: dict, steps: int, lr: float) -> torch.Tens
 
 def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0, budget: int | None = None) -> dict:
     r1, p1, b1, t1 = _fit(exp_path, target, "ipm", 1, seed, budget)
-    r8, _, b8, t8 = _fit(exp_path, target, "ipm-bound", 8, seed)
+    r8, p8, b8, t8 = _fit(exp_path, target, "ipm-bound", 8, seed)
     x1, d1 = b1["x"], b1["discrete"]
-    x8, d8 = b8["x"], b8["discrete"]
+    # the 8-view point in the K = 1 problem's terms (its sizes per count are held for other counts)
+    d8 = b8["discrete"]
+    x8 = p1.adopt(p8, b8["x"], d8).to(b1["x"].dtype)
     x8r = _refine(p1, x8, d8, steps, lr)
     row = {"target": target, "discrete_1": d1, "discrete_8": d8, "seconds": round(t1 + t8, 1)}
     for name, x, d in (("x1", x1, d1), ("x8", x8, d8), ("x8r", x8r, d8)):

@@ -134,6 +134,26 @@ def test_sizes_per_count_are_held_for_the_reference_counts():
     held = Problem(g, _mask_target(m), FitSettings(fix={"floor_height": 3.0}), reference=block)
     assert all(held.values(held.x0(), {"floors": f})["floor_height"] == 3.0 for f in (2, 5, 27))
 
+def test_a_point_of_one_problem_is_adopted_by_another_as_the_same_shape():
+    """Two fits of the building held for other reference counts (the default start's, a 6-storey proposal's): the
+    same search vector means other storey heights in each, and ``adopt`` re-encodes one's point for the other so
+    that it makes the same generator values and the same mesh in the world."""
+    g = get_generator("building")
+    m = torch.ones(1, 16, 16)
+    m[0, 0, 0] = 0
+    default = Problem(g, _mask_target(m), FitSettings(), dtype=torch.float64)
+    tall = Problem(g, _mask_target(m), FitSettings(), reference={"floors": 6, "sections": 6}, dtype=torch.float64)
+    d = {**default.d0, "floors": 7, "sections": 5}
+    x = default.x0(yaw=35.0, scale=0.8, t=(0.1, -0.05, 0.2))
+    assert tall.values(x, d)["floor_height"] != pytest.approx(default.values(x, d)["floor_height"])
+    y = tall.adopt(default, x, d)
+    want, got = default.values(x, d), tall.values(y, d)
+    assert {k: got[k] for k in want} == pytest.approx(want)
+    torch.testing.assert_close(tall.mesh_world(y, d).verts, default.mesh_world(x, d).verts, atol=1e-6, rtol=0)
+    with pytest.raises(ValueError, match="adopt: expected a problem of building"):
+        tall.adopt(Problem(get_generator("dishes"), _mask_target(m), FitSettings()), x, d)
+
+
 def _mask_target(m):
     from ipm.optim.targets import MaskTarget
 

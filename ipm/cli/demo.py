@@ -66,6 +66,7 @@ def register(app: typer.Typer) -> None:
         for init, r in S.learned_start(out).items():
             counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
             print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
+        _fused_views(S, out)
         print("spout tube and lid knob (#34): a real teapot from one view, both searched, each held off", flush=True)
         for name, r in S.teapot_spout(out).items():
             print(f"  {name:15s} held-out IoU {r['heldout_iou']:.3f} (has_spout {r['has_spout']}, has_knob "
@@ -84,11 +85,26 @@ def register(app: typer.Typer) -> None:
         print("  curves/: bottle_side.png, profile_overlay.png, bottle_lifted.json (a tree ipm generate loads), "
               "bottle_revolved.obj; outline.png and outline.svg")
         print("  learned_start/: presets/, learned/ and both/ run folders of the house's three fits, scores.json; "
-              "teapot/ and parsimony/ alike")
+              "fused_views/, teapot/ and parsimony/ alike")
         print("  exports/: armchair_exact.obj (exact CSG), armchair.usda (parameters as customData), armchair.scad and "
               "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
               "structures.jsonl (every tree tried), result.json")
+
+
+def _fused_views(S, out: Path) -> None:
+    """The fused-views step (:func:`ipm.showcase.fused_views`) and its lines: the network's guess from each view and
+    from all four fused, and the 4-view fit."""
+    print("  the same house from four views: the network's guess from each view alone and from all four ...",
+          flush=True)
+    rows = S.fused_views(out)
+    for name in ("view 1", "view 2", "view 3", "view 4", "fused"):
+        r = rows[name]
+        counts = ", ".join(f"{k} {r[k]}" for k in ("sections", "floors", "wings", "roof_type"))
+        print(f"  {name:6s} {counts}, yaw {r['yaw_deg']} deg, probability {r['probability']:.3g}")
+    fit = rows["fit"]
+    counts = ", ".join(f"{k} {v}" for k, v in fit["discrete"].items())
+    print(f"  fit from the four views: held-out IoU {fit['heldout_iou']:.3f} ({counts}) in {fit['wall_time_s']} s")
 
 
 def _parsimony(S, out: Path) -> None:

@@ -243,6 +243,25 @@ class Problem:
         out[self.n + 4] = E.encode_log2_scale(torch.log2(scale * size2 / size))
         return out.clamp(0, 1)
 
+    def adopt(self, other: Problem, x: torch.Tensor, discrete: Mapping[str, int]) -> torch.Tensor:
+        """``x (m,)`` of problem ``other`` (the same generator and free parameters; say a fit to more views) with
+        ``discrete`` values, encoded for this problem: the same generator values and the same shape in the world.
+        Sizes per count are held for each problem's own reference counts (:meth:`carry`) and the pose is relative to
+        each one's canonical frame (:meth:`frame`), so ``x`` itself means another shape here."""
+        if other.gen.name != self.gen.name or other.free != self.free or other.cam_fit != self.cam_fit:
+            raise ValueError(f"adopt: expected a problem of {self.gen.name} with the same free parameters, got one of "
+                             f"{other.gen.name}")
+        x = x.detach().double()
+        theta, t, yaw, scale, cam = other.decode(x)
+        d = {**other.d0, **discrete}
+        held = self.carry(other.carry(theta, d), d, inverse=True)
+        c, size = other.frame(d)
+        c2, size2 = self.frame(d)
+        # other's world map scale * (p - c) * 2 / size @ R^T + t, written with this problem's (c2, size2)
+        t2 = t + (scale * 2.0 / size) * (c2 - c) @ rot_y(yaw).T
+        return E.encode(self.layout, held, t=[float(v) for v in t2], yaw=float(yaw), scale=float(scale * size2 / size),
+                        camera=None if cam is None else [float(v) for v in cam])
+
     def mesh_start(self, discrete: Mapping[str, int]) -> dict:
         """``{"scale", "t"}`` that put the starting shape's bounding sphere (about its box center) on the
         mesh target's; empty for silhouettes, whose pose grid sets them from the masks."""
