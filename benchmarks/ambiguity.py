@@ -83,17 +83,21 @@ def _refine(prob, x: torch.Tensor, d: dict, steps: int, lr: float) -> torch.Tens
 
 
 def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0, budget: int | None = None) -> dict:
+    from ipm.optim.problem import Problem
+
     r1, p1, b1, t1 = _fit(exp_path, target, "ipm", 1, seed, budget)
     r8, p8, b8, t8 = _fit(exp_path, target, "ipm-bound", 8, seed)
     x1, d1 = b1["x"], b1["discrete"]
-    # the 8-view point in the K = 1 problem's terms (its sizes per count are held for other counts)
+    # the 8-view point in the terms of the K = 1 objective: the same problem, but with its sizes per count held for
+    # the 8-view answer's counts (Problem.carry: held for the K = 1 fit's, counts too far from those are squeezed)
     d8 = b8["discrete"]
-    x8 = p1.adopt(p8, b8["x"], d8).to(b1["x"].dtype)
-    x8r = _refine(p1, x8, d8, steps, lr)
+    q1 = Problem(p1.gen, p1.target, p1.s, dtype=p1.dtype, reference=d8)
+    x8 = q1.adopt(p8, b8["x"], d8).to(b1["x"].dtype)
+    x8r = _refine(q1, x8, d8, steps, lr)
     row = {"target": target, "discrete_1": d1, "discrete_8": d8, "seconds": round(t1 + t8, 1)}
-    for name, x, d in (("x1", x1, d1), ("x8", x8, d8), ("x8r", x8r, d8)):
-        loss, iou = _loss(p1, x, d)
-        mesh = p1.mesh_world(x.to(torch.float64), d).detach()
+    for name, prob, x, d in (("x1", p1, x1, d1), ("x8", q1, x8, d8), ("x8r", q1, x8r, d8)):
+        loss, iou = _loss(prob, x, d)
+        mesh = prob.mesh_world(x.to(torch.float64), d).detach()
         row[name] = {"loss": loss, "input_iou": iou, "heldout_iou": _score(exp_path, target, mesh, seed)}
     return row
 
