@@ -61,12 +61,7 @@ def register(app: typer.Typer) -> None:
               f"{st['evaluations']} evaluations in {st['wall_time_s']:.0f} s")
         print("editable exports (#31): the armchair's tree as an exact CSG mesh, USD and CAD programs ...", flush=True)
         _print_exports(S.editable_exports(out))
-        print("learned proposals (#29): a real LoD2 house from one view, started from a preset, from the network's "
-              "guesses and from both (the building's default) ...", flush=True)
-        for init, r in S.learned_start(out).items():
-            counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
-            print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
-        _fused_views(S, out)
+        _learned(S, out)
         print("spout tube and lid knob (#34): a real teapot from one view, both searched, each held off", flush=True)
         for name, r in S.teapot_spout(out).items():
             print(f"  {name:15s} held-out IoU {r['heldout_iou']:.3f} (has_spout {r['has_spout']}, has_knob "
@@ -90,6 +85,17 @@ def register(app: typer.Typer) -> None:
               "armchair.py where every node maps")
         print("  structure/: tree.json (the armchair's searched tree, ipm generate loads it), mesh.obj, "
               "structures.jsonl (every tree tried), result.json")
+
+
+def _learned(S, out: Path) -> None:
+    """The learned-proposals steps (:func:`ipm.showcase.learned_start`, :func:`ipm.showcase.fused_views`) and their
+    lines."""
+    print("learned proposals (#29): a real LoD2 house from one view, started from a preset, from the network's "
+          "guesses and from both (the building's default) ...", flush=True)
+    for init, r in S.learned_start(out).items():
+        counts = ", ".join(f"{k} {v}" for k, v in r["discrete"].items())
+        print(f"  from {init:8s} held-out IoU {r['heldout_iou']:.3f} ({counts}) in {r['wall_time_s']} s")
+    _fused_views(S, out)
 
 
 def _fused_views(S, out: Path) -> None:
