@@ -5,8 +5,9 @@ For each named target of a bench experiment (default ``experiments/table_coverag
 1. the K = 1 fit (the experiment's ``ipm`` method, its budget, seed 0): ``x1``;
 2. the 8-view fit (the ``ipm-bound`` method): ``x8``, posed in the same world as ``x1`` (the protocol's
    first input view is the same camera at K = 1 and K = 8);
-3. ``x8`` scored by the K = 1 fit's own objective (the same :class:`~ipm.optim.problem.Problem`, its
-   final blur), then refined on that objective alone (Adam, ``--steps``): ``x8r``.
+3. ``x8`` scored by the K = 1 fit's own objective (the K = 1 :class:`~ipm.optim.problem.Problem` at its final
+   blur, held for ``x8``'s counts: :meth:`~ipm.optim.problem.Problem.adopt`), then refined on that objective
+   alone (Adam, ``--steps``): ``x8r``.
 
 Each is scored as the bench scores a K = 1 cell (scaled about the input camera's eye, held-out IoU over
 the 16 held-out views). If the input-view loss of ``x8`` is *higher* than that of ``x1`` while its
