@@ -477,6 +477,8 @@ def test_one_view_is_proposed_as_before_and_more_views_sharpen_the_shipped_netwo
     m[30:90, 20:80] = 1
     cams = [orbit_camera(TRAIN_AZIMUTH + 90.0 * k, 25.0, 3.2, width=100, height=120) for k in range(2)]
     assert proposer.propose_views(m[None], cams[:1]) == proposer.propose(m, cams[0])
+    with pytest.raises(ValueError, match="propose_views: expected one camera per mask, got 2 masks and 1 cameras"):
+        proposer.propose_views(torch.stack([m, m]), cams[:1])
     two = proposer.propose_views(torch.stack([m, m]), cams)
     one = [proposer.propose(m, c)[0] for c in cams]
     assert 1 <= len(two) <= 4

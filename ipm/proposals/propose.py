@@ -60,6 +60,9 @@ class Proposer:
         reads each view on its own and the views' outputs are taken as independent evidence of the same object
         (:func:`fuse`: a product of the heads' distributions, the yaws turned into the world first); one view is
         :meth:`propose`'s answer as it was."""
+        if len(masks) != len(cameras) or len(cameras) == 0:
+            raise ValueError(f"propose_views: expected one camera per mask, got {len(masks)} masks and "
+                             f"{len(cameras)} cameras")
         outs = [(self.heads(m), cam) for m, cam in zip(masks, cameras)]
         mean, std, probs, yaw = summary(*outs[0]) if len(outs) == 1 else fuse(outs)
         cont = [p for p in self.gen.spec.params if p.continuous]
@@ -100,7 +103,8 @@ def fuse(outs: list[tuple[dict, Camera]]) -> View:
     prec = torch.stack([1.0 / v[1] ** 2 for v in views])
     mean = (torch.stack([v[0] for v in views]) * prec).sum(0) / prec.sum(0)
     std = prec.sum(0).rsqrt()
-    probs = [torch.softmax(sum(torch.log(v[2][h]) for v in views), 0) for h in range(len(views[0][2]))]
+    heads = range(len(views[0][2]))
+    probs = [torch.softmax(sum(torch.log(v[2][h].clamp_min(1e-300)) for v in views), 0) for h in heads]
     yaw_p = torch.softmax(sum(torch.log(world_bins(out, cam).clamp_min(1e-300)) for out, cam in outs), 0)
     return mean, std, probs, peak_yaw(yaw_p)
 
