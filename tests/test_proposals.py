@@ -385,22 +385,30 @@ _HEADS_DIGEST = """
 import hashlib, sys, torch
 from ipm.generators import get_generator
 from ipm.proposals import load_proposer
+from ipm.render.camera import orbit_camera
 h = hashlib.sha256()
 for g in ("building", "dishes"):
     proposer = load_proposer(get_generator(g), None)
+    masks = []
     for i in range(4):
         m = torch.zeros(120, 100)
         m[60 - 10 - 8 * i:60 + 10 + 8 * i, 20 + 3 * i:80 - 2 * i] = 1
+        masks.append(m)
         out = proposer.heads(m)
         for t in [out["mean"], out["log_std"], *out["discrete"], out["yaw"]]:
             h.update(t.numpy().tobytes())
+    cams = [orbit_camera(30.0 + 97.0 * k, 25.0, 3.2, width=100, height=120) for k in range(4)]
+    for k in (1, 2, 4):
+        for p in proposer.propose_views(torch.stack(masks[:k]), cams[:k]):
+            h.update(repr((p.values, p.probability, p.yaw_deg, p.std)).encode())
 print(h.hexdigest())
 """
 
 
 def test_proposals_are_the_same_bits_whatever_cpu_kernels_torch_picks():
     """torch picks its CPU kernels at run time; ``ATEN_CPU_CAPABILITY=default`` forces the plain ones another CPU
-    would run. The shipped networks' outputs (float64 inference rounded to float32) come out bit for bit the same
+    would run. The shipped networks' outputs (float64 inference rounded to float32) and the proposals made of them,
+    from one view and fused from several (their probabilities rounded to float32 too), come out bit for bit the same
     under both, and with two threads: a fit that starts from them starts in the same place on every machine."""
     import os
     import subprocess

@@ -88,7 +88,7 @@ def summary(out: dict, camera: Camera) -> View:
     """One view's network outputs ``out`` (:meth:`Proposer.heads`) as (continuous means (normalized), their standard
     deviations, each discrete head's probabilities, the world yaw in degrees (any turn)), all float64."""
     mean, std = out["mean"][0].double(), out["log_std"][0].double().exp()
-    probs = [torch.softmax(lg[0].double(), 0) for lg in out["discrete"]]
+    probs = [_same_bits(torch.softmax(lg[0].double(), 0)) for lg in out["discrete"]]
     yaw_rel = peak_yaw(torch.softmax(out["yaw"][0].double(), 0))
     return mean, std, probs, yaw_rel + camera_azimuth(camera) - TRAIN_AZIMUTH
 
@@ -104,9 +104,16 @@ def fuse(outs: list[tuple[dict, Camera]]) -> View:
     mean = (torch.stack([v[0] for v in views]) * prec).sum(0) / prec.sum(0)
     std = prec.sum(0).rsqrt()
     heads = range(len(views[0][2]))
-    probs = [torch.softmax(sum(torch.log(v[2][h].clamp_min(1e-300)) for v in views), 0) for h in heads]
+    probs = [_same_bits(torch.softmax(sum(torch.log(v[2][h].clamp_min(1e-300)) for v in views), 0)) for h in heads]
     yaw_p = torch.softmax(sum(torch.log(world_bins(out, cam).clamp_min(1e-300)) for out, cam in outs), 0)
     return mean, std, probs, peak_yaw(yaw_p)
+
+
+def _same_bits(p: torch.Tensor) -> torch.Tensor:
+    """Probabilities ``p`` (float64) rounded to float32 and back: ``exp`` and ``log`` in float64 differ in their last
+    bits between torch's CPU kernels (AVX-512, AVX2, none: the discrete heads' probabilities of the same outputs did),
+    which would move where :data:`MASS` cuts the proposals and the ranking of near ties from machine to machine."""
+    return p.float().double()
 
 
 def world_bins(out: dict, camera: Camera) -> torch.Tensor:
