@@ -73,6 +73,14 @@ def _searched(gen, settings: FitSettings) -> list[Param]:
     return searched
 
 
+def reframed(t: torch.Tensor, yaw, scale, frame: tuple, to: tuple) -> tuple[torch.Tensor, torch.Tensor]:
+    """The translation and scale that place a shape measured in canonical frame ``to`` (center, longest side:
+    :meth:`Problem.frame`) where ``(t, yaw, scale)`` places it measured in ``frame``. The world map is
+    ``scale * (p - c) * 2 / size @ R^T + t``; written with ``to``'s center and size it keeps every point."""
+    (c, size), (c2, size2) = frame, to
+    return t + (scale * 2.0 / size) * (c2 - c) @ rot_y(yaw).T, scale * size2 / size
+
+
 class Problem:
     """A generator, a target and the layout of the search vector (see the module docstring)."""
 
@@ -234,13 +242,10 @@ class Problem:
         and scale it."""
         x = x.detach().double()
         _, t, yaw, scale, _ = self.decode(x)
-        c, size = self.frame(d_from)
-        c2, size2 = self.frame(d_to)
-        # _to_world maps p to scale * (p - c) * 2 / size @ R^T + t: the same map with (c2, size2)
-        t2 = t + (scale * 2.0 / size) * (c2 - c) @ rot_y(yaw).T
+        t2, scale2 = reframed(t, yaw, scale, self.frame(d_from), self.frame(d_to))
         out = x.clone()
         out[self.n:self.n + 3] = E.encode_translation(t2)
-        out[self.n + 4] = E.encode_log2_scale(torch.log2(scale * size2 / size))
+        out[self.n + 4] = E.encode_log2_scale(torch.log2(scale2))
         return out.clamp(0, 1)
 
     def adopt(self, other: Problem, x: torch.Tensor, discrete: Mapping[str, int]) -> torch.Tensor:
@@ -255,11 +260,8 @@ class Problem:
         theta, t, yaw, scale, cam = other.decode(x)
         d = {**other.d0, **discrete}
         held = self.carry(other.carry(theta, d), d, inverse=True)
-        c, size = other.frame(d)
-        c2, size2 = self.frame(d)
-        # other's world map scale * (p - c) * 2 / size @ R^T + t, written with this problem's (c2, size2)
-        t2 = t + (scale * 2.0 / size) * (c2 - c) @ rot_y(yaw).T
-        return E.encode(self.layout, held, t=[float(v) for v in t2], yaw=float(yaw), scale=float(scale * size2 / size),
+        t2, scale2 = reframed(t, yaw, scale, other.frame(d), self.frame(d))
+        return E.encode(self.layout, held, t=[float(v) for v in t2], yaw=float(yaw), scale=float(scale2),
                         camera=None if cam is None else [float(v) for v in cam])
 
     def mesh_start(self, discrete: Mapping[str, int]) -> dict:
