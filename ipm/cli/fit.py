@@ -100,7 +100,7 @@ SdfSilhouetteOpt = Annotated[str, typer.Option("--sdf-silhouette", help=(
     "theorem (mesh, the default) or sphere-traced pixel by pixel (trace: the reference, 2.5 to 3.5x slower)"))]
 PolishOpt = Annotated[float | None, typer.Option(help=(
     "share of the budget for the final refinement of the best candidates with every parameter free "
-    "(default: the generator's, else 0.15; building 0.25; a photo's details: 0.4)"))]
+    "(default 0.15; a photo's details: 0.4)"))]
 StructureOpt = Annotated[str, typer.Option(help=(
     "fixed: fit GEN's parameters; search: search the tree itself (which primitives, joined how) and its "
     "parameters, from --target-mesh or --masks of 2+ views, starting from GEN (a tree file) if given; "

@@ -74,8 +74,6 @@ class Generator(ABC):
     # discrete values add (Param.adds) stay only where they bring the fit's loss below this share of the best loss
     # without them. None: 1, no rule (the lower loss wins)
     part_ratio: float | None = None
-    # the budget's share for a fit's polish (FitSettings.polish, ipm.optim.fit.polish_share); None: POLISH_SHARE
-    polish_share: float | None = None
     # where fits start by default (FitSettings.init, ipm.optim.fit.init_mode): "presets", "learned" or "both" (the
     # two latter only where proposal weights exist for the generator; without them "both" is "presets")
     init: str = "presets"

@@ -415,11 +415,6 @@ class BuildingGenerator(Generator):
     # nine buildings (results/table1) the mean held-out IoU went 0.845 -> 0.901 at K = 1, 0.890 -> 0.918 at K = 2,
     # 0.938 -> 0.937 at K = 4 against "presets"
     init = "both"
-    # a quarter of the budget for the polish (the two best discrete candidates refined at the finer polish blur,
-    # then the winner): on the tune split's nine buildings (experiments/table1.toml), seed 0, against the default
-    # 0.15, held-out IoU 0.901 -> 0.905 at K = 1 (seeds 1 and 2 alike), 0.926 -> 0.929 at K = 2, 0.948 -> 0.948 at
-    # K = 4; 0.35: 0.904 and 0.928 (experiment files in the closing note of issue #34)
-    polish_share = 0.25
 
     def __init__(self):
         self.spec = building_spec()

@@ -33,7 +33,7 @@ from ipm.optim.pose import (
     yaw_turns,
 )
 from ipm.optim.problem import Problem
-from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, POLISH_SHARE, FitSettings, InitMode
+from ipm.optim.settings import CAMERA_MODES, MASK_LR, MESH_LR, FitSettings, InitMode
 from ipm.optim.shapes import POLISH_SIGMA_FACTOR
 from ipm.optim.strategies import STRATEGIES
 from ipm.optim.targets import MaskTarget, MeshTarget
@@ -150,15 +150,6 @@ def fit_lr(gen, target: MaskTarget | MeshTarget, settings: FitSettings) -> float
     return float(getattr(gen, "mask_lr", None) or MASK_LR)
 
 
-def polish_share(gen, settings: FitSettings) -> float:
-    """The budget's share for the polish: ``settings.polish`` if given, else the generator's ``polish_share``, else
-    :data:`~ipm.optim.settings.POLISH_SHARE`."""
-    if settings.polish is not None:
-        return float(settings.polish)
-    own = getattr(gen, "polish_share", None)
-    return float(POLISH_SHARE if own is None else own)
-
-
 def part_ratio(gen, settings: FitSettings) -> float:
     """The parsimony rule's share (:func:`ipm.optim.parsimony.simpler_winner`): ``settings.part_ratio`` if given,
     else the generator's ``part_ratio``, else 1 (no rule)."""
@@ -211,7 +202,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
 
     if isinstance(target, MaskTarget) and (target.parts is not None or target.depth is not None) and space.discrete:
         outline_first(prob, ev, space, settings)
-    polish = int(settings.budget * polish_share(gen, settings))
+    polish = int(settings.budget * settings.polish)
     # the tie rule's evaluations (one per searched discrete value, and one more per part it adds that is a
     # part of the mesh: ties.owned_parameters) are kept from the polish; those it does not need go back to
     # the winner

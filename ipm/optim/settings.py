@@ -19,7 +19,7 @@ from ipm.settings_check import allowed, error_path, field_types, first_infinite
 # Default Adam steps in normalized parameter space (generators may set ``mask_lr``; ``--lr`` overrides)
 MASK_LR = 0.02
 MESH_LR = 0.02
-POLISH_SHARE = 0.15  # default share of the budget for the polish (FitSettings.polish, Generator.polish_share)
+POLISH_SHARE = 0.15  # default share of the budget for the polish (FitSettings.polish)
 PART_COST = 0.0
 # FitSettings.anchor: the public bowl from one view (table_coverage's protocol, seed 0, 500 evaluations)
 # drifted to an oval 1.16 deep and 33 % too tall (held-out IoU 0.879) with the section free; with 0.02
@@ -73,9 +73,8 @@ class FitSettings:
     pose: bool = True
     # pull towards the starting preset in normalized space
     prior_weight: Annotated[float, Meta(ge=0, extra={"noun": "a weight"})] = 0.0
-    # share of the budget kept for the final gradient refinement; None: the generator's ``polish_share``, else
-    # POLISH_SHARE (ipm.optim.fit.polish_share)
-    polish: Annotated[float, Meta(ge=0, le=1, extra={"noun": "a share of the budget"})] | None = None
+    # share of the budget kept for the final gradient refinement
+    polish: Annotated[float, Meta(ge=0, le=1, extra={"noun": "a share of the budget"})] = POLISH_SHARE
     coarse_to_fine: bool = True      # silhouettes: hold the generator's detail parameters during the search
     lod: Any = None
     # mesh generators: render the mesh at ``lod`` subdivided ``subdivide_levels`` times by this scheme of
