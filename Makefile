@@ -62,6 +62,9 @@ table-synthetic: $(STAMP) ## generator samples with known parameters, results/ta
 table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside the K = 1 fits, results/table_coverage/
 	$(call run_bench,table_coverage,table_coverage)
 
+coverage-validation: $(STAMP) ## the same on the validation split's vessels and buildings (reported only), results/coverage_validation/
+	$(call run_bench,coverage_validation,coverage_validation)
+
 weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the package (about a minute on 2 cores)
 	$(BIN)/ipm train-subdivision -o ipm/subdiv/weights/neural_dishes.npz --pairs 32 --steps 1500 --seed 0
 
@@ -77,6 +80,9 @@ table-init: $(STAMP) ## K = 1 fits started from the presets, the learned proposa
 
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
+
+bench-ambiguity-validation: $(STAMP) ## the same for the validation split's weakest K = 1 cells, results/ambiguity_validation.md (about 25 minutes)
+	$(BIN)/python -m benchmarks.ambiguity mustard saucer teaset_teapot montreal_energy munich_2869664 munich_2869678 --experiment experiments/coverage_validation.toml -o results/ambiguity_validation.md
 
 table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 15 minutes: it trains 10 networks)
 	$(BIN)/python -m benchmarks.table_subdiv results/table_subdiv
@@ -123,7 +129,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage weights proposals table-proposals table-init bench-ambiguity table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage coverage-validation weights proposals table-proposals table-init bench-ambiguity bench-ambiguity-validation table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md
