@@ -62,6 +62,9 @@ table-synthetic: $(STAMP) ## generator samples with known parameters, results/ta
 table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside the K = 1 fits, results/table_coverage/
 	$(call run_bench,table_coverage,table_coverage)
 
+table-sections: $(STAMP) ## dishes samples whose body is not round in section, fitted from 1 and 2 views, results/table_sections/
+	$(call run_bench,table_sections,table_sections)
+
 coverage-validation: $(STAMP) ## the same on the validation split's vessels and buildings (reported only), results/coverage_validation/
 	$(call run_bench,coverage_validation,coverage_validation)
 
@@ -129,7 +132,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage coverage-validation weights proposals table-proposals table-init bench-ambiguity bench-ambiguity-validation table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage table-sections coverage-validation weights proposals table-proposals table-init bench-ambiguity bench-ambiguity-validation table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md
