@@ -65,7 +65,7 @@ table-coverage: $(STAMP) ## what the generators can take (8-view bound) beside t
 table-sections: $(STAMP) ## dishes samples whose body is not round in section, fitted from 1 and 2 views, results/table_sections/
 	$(call run_bench,table_sections,table_sections)
 
-coverage-validation: $(STAMP) ## the same on the validation split's vessels and buildings (reported only), results/coverage_validation/
+coverage-validation: $(STAMP) ## the same on the validation split's vessels and buildings (reported only), results/coverage_validation/ (18 minutes, 2 workers)
 	$(call run_bench,coverage_validation,coverage_validation)
 
 weights: $(STAMP) ## retrain the neural-subdivision weights shipped in the package (about a minute on 2 cores)
@@ -84,7 +84,7 @@ table-init: $(STAMP) ## K = 1 fits started from the presets, the learned proposa
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
-bench-ambiguity-validation: $(STAMP) ## the same for the validation split's weakest K = 1 cells, results/ambiguity_validation.md (about 25 minutes)
+bench-ambiguity-validation: $(STAMP) ## the same for the validation split's weakest K = 1 cells, results/ambiguity_validation.md (12 minutes beside a two-worker bench)
 	$(BIN)/python -m benchmarks.ambiguity mustard saucer teaset_teapot montreal_energy munich_2869664 munich_2869678 --experiment experiments/coverage_validation.toml -o results/ambiguity_validation.md
 
 table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 15 minutes: it trains 10 networks)

@@ -71,3 +71,17 @@ def test_bench_split_option_refuses_an_unknown_split(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "it has none: give targets a split key" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_the_validation_coverage_table_holds_the_validation_splits_vessels_and_buildings_as_table1_does():
+    """experiments/coverage_validation.toml copies its targets and its fits' settings from table1.toml (the
+    validation split, furniture left out) and table_coverage.toml (the 8-view fit): a target or a setting changed in
+    one file and not the other would make the two tables measure different things."""
+    table1, coverage = load_experiment(EXPERIMENT), load_experiment("experiments/table_coverage.toml")
+    cv = load_experiment("experiments/coverage_validation.toml")
+    wanted = [t for t in table1.targets if t.split == "validation" and t.cls not in ("chair", "table")]
+    assert list(cv.targets) == wanted
+    for t in cv.targets:
+        assert cv.method("ipm").settings_for(t) == table1.method("ipm").settings_for(t)
+        assert cv.method("ipm-bound").settings_for(t) == coverage.method("ipm-bound").settings_for(t)
+    assert (cv.budget, cv.size, cv.heldout_size) == (table1.budget, table1.size, table1.heldout_size)
