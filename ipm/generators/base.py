@@ -80,6 +80,10 @@ class Generator(ABC):
     # names of the face groups (parts) its meshes can have, whatever the discrete values: what a part-label
     # target may name. Empty: the groups of the mesh at the default values
     parts: tuple[str, ...] = ()
+    # variants of a fit's starting preset that its pose and discrete search also starts from (ipm.optim.pose.
+    # preset_starts): each a set of overrides put on the starting preset, for shapes the presets leave out but
+    # any preset may take (a vessel of the preset's profile with a square or a flat section)
+    start_variants: tuple[Mapping[str, Value], ...] = ()
 
     # -- values --------------------------------------------------------------------------------
     def values(self, preset: str | None = None, overrides: Mapping[str, object] | None = None) -> dict:

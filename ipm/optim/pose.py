@@ -235,12 +235,15 @@ def spread_starts(scored: list[tuple], keep: int, tol: float = 1e-3) -> list[tup
 
 
 def preset_starts(prob: Problem, x_best: torch.Tensor) -> list[tuple[torch.Tensor, dict]]:
-    """The generator's presets (other than the starting one) as (x, discrete), posed like ``x_best``."""
+    """The generator's presets (other than the starting one), then its start variants of the starting preset or
+    defaults (:attr:`Generator.start_variants`; the fit's fixed values win), as (x, discrete), posed like
+    ``x_best``."""
+    overrides = [(name, dict(prob.s.fix)) for name in sorted(prob.gen.presets) if name != prob.s.preset]
+    overrides += [(prob.s.preset, {**variant, **prob.s.fix}) for variant in prob.gen.start_variants
+                  if any(k not in prob.s.fix for k in variant)]
     out = []
-    for name in sorted(prob.gen.presets):
-        if name == prob.s.preset:
-            continue
-        vals = prob.gen.values(name, prob.s.fix)
+    for name, over in overrides:
+        vals = prob.gen.values(name, over)
         th, dd = prob.gen.split(vals, torch.float64)
         th = prob.carry(th, dd, inverse=True)  # the search holds sizes per count for its reference counts
         out.append((torch.cat([prob.encode_params(th), x_best[prob.n:]]), dict(dd)))

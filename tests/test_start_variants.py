@@ -1,0 +1,72 @@
+"""Start variants (:attr:`ipm.generators.base.Generator.start_variants`): shapes a generator's presets leave
+out but any preset may take, added by :func:`ipm.optim.pose.preset_starts` to the starts of the pose and
+discrete search, made of the fit's starting preset and under its fixed values."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from ipm.generators import get_generator
+from ipm.optim.fit import FitSettings, MaskTarget, Problem, preset_starts
+from ipm.render.camera import orbit_camera
+
+SECTION = ("section_squareness", "section_aspect")
+
+
+def _starts(gen_name: str, **settings) -> tuple[Problem, torch.Tensor, list[dict]]:
+    """The problem, the posed start ``x`` and the named values of every preset start of a fit to a box's view."""
+    gen = get_generator(gen_name)
+    cam = orbit_camera(30.0, 20.0, 3.2, fov_deg=40.0, width=32)
+    mask = torch.zeros(1, 32, 32)
+    mask[:, 8:24, 10:22] = 1.0
+    prob = Problem(gen, MaskTarget(mask, [cam]), FitSettings(**settings), dtype=torch.float64)
+    x = prob.x0(yaw=25.0, scale=1.1, t=(0.1, 0.0, -0.05))
+    return prob, x, [(xs, prob.values(xs, d)) for xs, d in preset_starts(prob, x)]
+
+
+def _same(a: dict, b: dict, but=()) -> bool:
+    return all(abs(float(a[k]) - float(b[k])) < 1e-6 for k in a if k not in but)
+
+
+def test_dishes_starts_add_a_square_and_a_flat_section_of_the_starting_preset():
+    """After the other presets, the starting preset twice more: square (squareness 0.7) and flat (aspect 0.6,
+    squareness 0.3), every other value the preset's, posed like the start."""
+    gen = get_generator("dishes")
+    prob, x, starts = _starts("dishes", preset="plate")
+    others = [n for n in sorted(gen.presets) if n != "plate"]
+    assert len(starts) == len(others) + len(gen.start_variants) == len(others) + 2
+    for (_, vals), name in zip(starts, others):
+        assert _same(vals, gen.values(name))
+    plate = gen.values("plate")
+    for (xs, vals), (sq, asp) in zip(starts[len(others):], ((0.7, 1.0), (0.3, 0.6))):
+        assert (vals["section_squareness"], vals["section_aspect"]) == pytest.approx((sq, asp))
+        assert _same(vals, plate, but=SECTION)
+        torch.testing.assert_close(xs[prob.n:], x[prob.n:])   # the pose of the start
+
+
+def test_the_fits_fixed_values_win_over_a_variant():
+    """A fixed squareness stays in every variant; with both section values fixed the variants are the preset
+    itself and are left out."""
+    gen = get_generator("dishes")
+    _, _, starts = _starts("dishes", preset="mug", fix={"section_squareness": 0.2})
+    variants = [v for _, v in starts[len(gen.presets) - 1:]]
+    got = [v[name] for v in variants for name in SECTION]
+    assert got == pytest.approx([0.2, 1.0, 0.2, 0.6])
+    _, _, both = _starts("dishes", preset="mug", fix={"section_squareness": 0.2, "section_aspect": 0.9})
+    assert len(both) == len(gen.presets) - 1
+
+
+def test_without_a_preset_the_variants_are_of_the_defaults():
+    gen = get_generator("dishes")
+    _, _, starts = _starts("dishes")
+    defaults = gen.values(None)
+    variants = [v for _, v in starts[len(gen.presets):]]
+    assert len(variants) == 2 and all(_same(v, defaults, but=SECTION) for v in variants)
+
+
+def test_generators_without_variants_start_from_their_presets_only():
+    gen = get_generator("building")
+    assert gen.start_variants == ()
+    _, _, starts = _starts("building", preset="house2")
+    assert len(starts) == len(gen.presets) - 1
