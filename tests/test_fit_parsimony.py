@@ -150,7 +150,7 @@ def test_the_cli_fit_names_what_the_rule_dropped(tmp_path, capsys):
     got = {}
     for ratio in ("1", "0.01"):
         run = tmp_path / f"run_{ratio}"
-        code, _, err = run_cli(["fit", "dishes", "--masks", masks, "--preset", "glass", "--budget", "80",
+        code, _, err = run_cli(["fit", "dishes", "--masks", masks, "--preset", "glass", "--budget", "120",
                                 "--part-ratio", ratio, "-o", run], capsys)
         assert code == 0, err
         result = json.loads((run / "result.json").read_text())
