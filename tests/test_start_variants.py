@@ -70,3 +70,41 @@ def test_generators_without_variants_start_from_their_presets_only():
     assert gen.start_variants == ()
     _, _, starts = _starts("building", preset="house2")
     assert len(starts) == len(gen.presets) - 1
+
+
+def _sample_views(preset: str, overrides: dict, size: int = 64) -> MaskTarget:
+    """Two of the protocol's views (azimuths 30 and 120 degrees, elevation 25) of a dishes sample in its unit
+    bounding sphere."""
+    from ipm.metrics import unit_sphere_frame
+    from ipm.render.raster import rasterize_mesh
+    from ipm.types import TriMesh
+
+    gen = get_generator("dishes")
+    mesh = gen.to_mesh(gen.values(preset, overrides))
+    center, scale = unit_sphere_frame(mesh.verts.double().numpy())
+    mesh = TriMesh((mesh.verts.double() - torch.as_tensor(center)) * scale, mesh.faces)
+    cams = [orbit_camera(a, 25.0, 3.2, fov_deg=40.0, width=size) for a in (30.0, 120.0)]
+    return MaskTarget(torch.stack([rasterize_mesh(mesh, c).mask.float() for c in cams]),
+                      [c.to(torch.float32) for c in cams])
+
+
+@pytest.mark.parametrize("preset, section, name, reached", [
+    ("bowl", {"section_squareness": 0.9, "section_aspect": 1.0}, "section_squareness", lambda v: v > 0.5),
+    ("bottle", {"section_squareness": 0.3, "section_aspect": 0.6}, "section_aspect", lambda v: v < 0.8)])
+def test_a_fit_from_round_presets_reaches_a_square_or_flat_section(preset, section, name, reached):
+    """Two views of a square bowl and of a flat bottle, fitted from their round preset (150 evaluations, 64 px):
+    with the variants the fit ends square (flat) at well under half the loss; without them (the same generator with
+    ``start_variants`` emptied) it stays round. Measured: squareness 0.72 against 0.03 (loss 0.058 against 0.143),
+    aspect 0.59 against 0.97 (0.048 against 0.119)."""
+    from ipm.optim.fit import run_fit
+
+    target = _sample_views(preset, section)
+    ends = {}
+    for variants in (True, False):
+        gen = get_generator("dishes")
+        if not variants:
+            gen.start_variants = ()
+        res, prob, best = run_fit(gen, target, FitSettings(preset=preset, budget=150))
+        ends[variants] = (res.loss, prob.values(best["x"], best["discrete"])[name])
+    assert reached(ends[True][1]) and not reached(ends[False][1]), ends
+    assert ends[True][0] < 0.5 * ends[False][0], ends
