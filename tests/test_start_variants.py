@@ -14,7 +14,7 @@ from ipm.render.camera import orbit_camera
 SECTION = ("section_squareness", "section_aspect")
 
 
-def _starts(gen_name: str, **settings) -> tuple[Problem, torch.Tensor, list[dict]]:
+def _starts(gen_name: str, **settings) -> tuple[Problem, torch.Tensor, list[tuple[torch.Tensor, dict]]]:
     """The problem, the posed start ``x`` and the named values of every preset start of a fit to a box's view."""
     gen = get_generator(gen_name)
     cam = orbit_camera(30.0, 20.0, 3.2, fov_deg=40.0, width=32)
