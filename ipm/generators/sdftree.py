@@ -14,6 +14,7 @@ from pathlib import Path
 import torch
 
 from ipm.errors import InputError
+from ipm.files import read_json
 from ipm.generators.base import PRESET_FAMILIES, Generator, PresetFamily, check_field_meshing, register_generator
 from ipm.params import Value
 from ipm.sdf.exact import ExactMesh, exact_mesh
@@ -37,19 +38,24 @@ class SdfTreeGenerator(Generator):
     # what parameter files written from any tree say they are for (a named tree preset's name is its own)
     file_format = "sdftree"
 
-    def __init__(self, tree: Tree, name: str = "sdftree", source: str | None = None):
+    def __init__(self, tree: Tree, name: str = "sdftree", source: str | None = None,
+                 start_variants: tuple[Mapping[str, Value], ...] = ()):
         self.tree = tree
         self.name = name
         self.source = source
         self.spec = tree.spec
+        self.start_variants = tuple(start_variants)
         self.presets = {}
         self.description = f"SDF tree from {source}" if source else "SDF tree"
         self._cache: dict[tuple, Tree] = {}
 
     @staticmethod
     def from_file(path: str | Path) -> SdfTreeGenerator:
-        """A generator over the SDF tree in a file (``InputError`` naming the file if it cannot be read)."""
-        return SdfTreeGenerator(load_tree(path), "sdftree", str(path))
+        """A generator over the SDF tree in a file (``InputError`` naming the file if it cannot be read), with the
+        file's start variants (:func:`tree_start_variants`)."""
+        tree = load_tree(path)
+        variants = tree_start_variants(read_json(path, "tree file"), tree, f"tree file {path}")
+        return SdfTreeGenerator(tree, "sdftree", str(path), variants)
 
     @staticmethod
     def from_preset(name: str) -> SdfTreeGenerator:
@@ -58,8 +64,9 @@ class SdfTreeGenerator(Generator):
         presets = tree_presets()
         if name not in presets:
             raise InputError(f"unknown tree preset {name!r}; known: {', '.join(sorted(presets))}")
-        path = presets[name]
-        return SdfTreeGenerator(tree_from_json(json.loads(path.read_text())), name, f"preset {name}")
+        data = json.loads(presets[name].read_text())
+        tree = tree_from_json(data)
+        return SdfTreeGenerator(tree, name, f"preset {name}", tree_start_variants(data, tree, f"tree preset {name}"))
 
     def tree_for(self, discrete: Mapping[str, int]) -> Tree:
         """The tree with these discrete values (cached)."""
@@ -98,6 +105,23 @@ class SdfTreeGenerator(Generator):
 
         return {"generator": self.name, "params": dict(values),
                 "tree": tree_to_json(self.tree.with_values(values))["tree"]}
+
+
+def tree_start_variants(data, tree: Tree, where: str) -> tuple[dict[str, Value], ...]:
+    """A tree file's optional ``"start_variants"``: a list of objects of the tree's parameter values, each put on
+    the defaults (or a fit's starting values) as another start of a fit (:attr:`Generator.start_variants`), for
+    shapes of the tree's family the defaults are far from (the chair tree's stool: no back). ``InputError`` naming
+    ``where`` for anything else, an unknown parameter or a value out of its bounds."""
+    raw = data.get("start_variants", []) if isinstance(data, Mapping) else []
+    if not isinstance(raw, list) or not all(isinstance(v, Mapping) and v for v in raw):
+        raise InputError(f"{where}: start_variants: expected a list of non-empty objects of parameter values, "
+                         f"got {json.dumps(raw)[:80]}")
+    try:
+        for variant in raw:
+            tree.spec.validate(variant)
+    except InputError as e:
+        raise InputError(f"{where}: start_variants: {e}") from None
+    return tuple(dict(v) for v in raw)
 
 
 @register_generator("sdftree", from_file=SdfTreeGenerator.from_file)

@@ -33,7 +33,8 @@ class Space:
 
     m: length of the normalized continuous vector; gen: indices of the generator's coordinates (the
     rest is pose and camera); discrete: the searched discrete parameters; starts: (x, discrete)
-    starting poses, best first; presets: the generator's presets posed like the best start.
+    starting poses, best first; presets: the generator's presets posed like the best start (with nothing discrete
+    searched: its start variants, which the multistart of ``none`` refines beside the starts).
     """
 
     m: int

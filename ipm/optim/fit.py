@@ -29,6 +29,7 @@ from ipm.optim.pose import (
     pose_grid,
     preset_starts,
     spread_starts,
+    variant_starts,
     yaw_free,
     yaw_turns,
 )
@@ -259,9 +260,11 @@ def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list
             starts, presets, free_yaw = learned_starts(prob, ev, proposals)
         else:
             starts, presets, free_yaw = initial_starts(prob, ev, rank=rank, proposals=proposals)
+        if not prob.searched:  # the multistart of "none" refines the start variants beside its best starts
+            presets = variant_starts(prob, ev, starts[0][0])
     except BudgetExhausted:
         starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
-        presets = preset_starts(prob, starts[0][0])
+        presets = preset_starts(prob, starts[0][0], others=bool(prob.searched))
     return starts, presets, free_yaw, info
 
 
