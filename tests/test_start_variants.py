@@ -178,3 +178,22 @@ def test_a_fit_with_nothing_discrete_refines_the_variants_too():
         ends[variants] = (res.loss, prob.values(best["x"], best["discrete"])["chair.back_height"])
     assert ends[True][1] < 0.2 < ends[False][1], ends
     assert ends[True][0] < 0.6 * ends[False][0], ends
+
+
+def test_a_small_budget_leaves_the_variants_out():
+    """Their pose grids (16 evaluations each) may take at most a tenth of the budget (``pose.VARIANT_SHARE``): at
+    150 evaluations the chair's one variant is left out, and the fit is the one without variants, evaluation for
+    evaluation."""
+    from ipm.optim.fit import run_fit
+
+    target = _stool_view()
+    runs = []
+    for variants in (True, False):
+        gen = get_generator("chair")
+        if not variants:
+            gen.start_variants = ()
+        records: list[dict] = []
+        res, _, _ = run_fit(gen, target, FitSettings(budget=150, seed=0), sink=records.append)
+        runs.append((res.loss, [r["phase"] for r in records]))
+    assert runs[0] == runs[1]
+    assert "init:variants" not in runs[0][1]
