@@ -84,6 +84,9 @@ table-init: $(STAMP) ## K = 1 fits started from the presets, the learned proposa
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
+bench-ambiguity-views: $(STAMP) ## do tune vessels' fits from four views miss what two views found? results/ambiguity_views.md (about 30 minutes)
+	$(BIN)/python -m benchmarks.ambiguity cup_1 cup_2 bowl plate pitcher teapot bottle vase sugar_bowl plate_round --experiment experiments/table1.toml --views 4 --against ipm:2 -o results/ambiguity_views.md
+
 bench-ambiguity-validation: $(STAMP) ## the same for the validation split's weakest K = 1 cells, results/ambiguity_validation.md (12 minutes beside a two-worker bench)
 	$(BIN)/python -m benchmarks.ambiguity mustard saucer teaset_teapot montreal_energy munich_2869664 munich_2869678 --experiment experiments/coverage_validation.toml -o results/ambiguity_validation.md
 
@@ -132,7 +135,7 @@ table-convert: $(STAMP) ## mesh conversion table (bsp, perturb, dense SDF grid),
 clean: ## remove caches (keeps .venv)
 	rm -rf .pytest_cache .ruff_cache build *.egg-info
 
-.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage table-sections coverage-validation weights proposals table-proposals table-init bench-ambiguity bench-ambiguity-validation table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
+.PHONY: help install demo test test-fast lint bench bench-small table-gear table1 table-validation split-report table-synthetic table-coverage table-sections coverage-validation weights proposals table-proposals table-init bench-ambiguity bench-ambiguity-views bench-ambiguity-validation table-subdiv table-subdiv-fit table-curves bench-transport bench-profile table-convert bench-structure-masks table-structure exact-mesh openscad cad table-exports cadquery-booleans clean
 
 bench-perturbation: $(STAMP) ## does a fit's answer hinge on noise? 6 fits x 6 perturbations (kernel, threads, SIMD, 1e-6 moves), results/perturbation.md (about 15 minutes)
 	$(BIN)/python -m benchmarks.perturbation -o results/perturbation.md

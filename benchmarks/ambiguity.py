@@ -1,21 +1,24 @@
-"""Is a weak single-view cell the search's fault or the view's? One diagnostic per target.
+"""Is a weak cell the search's fault or the views'? One diagnostic per target.
 
 For each named target of a bench experiment (default ``experiments/table_coverage.toml``) this runs:
 
-1. the K = 1 fit (the experiment's ``ipm`` method, its budget, seed 0): ``x1``;
-2. the 8-view fit (the ``ipm-bound`` method): ``x8``, posed in the same world as ``x1`` (the protocol's
-   first input view is the same camera at K = 1 and K = 8);
-3. ``x8`` scored by the K = 1 fit's own objective (the K = 1 :class:`~ipm.optim.problem.Problem` at its final
+1. the K-view fit (``--views``, default 1; the experiment's ``ipm`` method, its budget, seed 0): ``x1``;
+2. a reference fit (``--against METHOD:VIEWS``, default the 8-view ``ipm-bound``): ``x8``, posed in the same
+   world as ``x1`` (every fit places the shape in the world of the protocol's cameras);
+3. ``x8`` scored by the K-view fit's own objective (its :class:`~ipm.optim.problem.Problem` at its final
    blur, held for ``x8``'s counts: :meth:`~ipm.optim.problem.Problem.adopt`), then refined on that objective
    alone (Adam, ``--steps``): ``x8r``.
 
-Each is scored as the bench scores a K = 1 cell (scaled about the input camera's eye, held-out IoU over
-the 16 held-out views). If the input-view loss of ``x8`` is *higher* than that of ``x1`` while its
-held-out IoU is far higher, the single-view objective prefers the wrong shape: no search on it can land,
-only a prior (or more views) can. If ``x8`` has the lower loss, the search did not find it.
+(The table names them after their view counts: ``x4``, ``x2``, ``x2r`` for ``--views 4 --against ipm:2``.) Each is
+scored as the bench scores a K-view cell (at K = 1 scaled about the input camera's eye; held-out IoU over the 16
+held-out views). If the input-view loss of ``x8`` is *higher* than that of ``x1`` while its held-out IoU is far
+higher, the K-view objective prefers the wrong shape: no search on it can land, only a prior (or more views) can.
+If ``x8`` has the lower loss, the search did not find it. With fewer views in the reference (``--views 4 --against
+ipm:2``) it asks why a fit from more views ends worse than one from fewer.
 
-Usage: ``python -m benchmarks.ambiguity [--experiment TOML] [--steps N] [--budget N] [-o OUT.md] TARGET ...``
-(``make bench-ambiguity`` runs the four targets that missed the bar in results/table_coverage).
+Usage: ``python -m benchmarks.ambiguity [--experiment TOML] [--views K] [--against METHOD:VIEWS] [--steps N]
+[--budget N] [-o OUT.md] TARGET ...`` (``make bench-ambiguity`` runs the four targets that missed the bar in
+results/table_coverage; ``make bench-ambiguity-views`` the tune vessels that fit worse from four views than two).
 """
 
 from __future__ import annotations
@@ -31,8 +34,9 @@ import torch
 from ipm.files import write_text
 
 
-def _score(exp_path: str, target: str, mesh, seed: int) -> float:
-    """Held-out IoU of a mesh posed for the input views, as a K = 1 cell is scored."""
+def _score(exp_path: str, target: str, mesh, seed: int, views: int = 1) -> float:
+    """Held-out IoU of a mesh posed for the input views, as a cell of ``views`` views is scored (at K = 1 scaled about
+    the input camera's eye, :func:`ipm.bench.protocol.align_scale`; as it stands from more views)."""
     from ipm.bench import harness as H
     from ipm.bench.config import load_experiment
     from ipm.bench.protocol import align_scale, render_masks, scale_about
@@ -40,8 +44,9 @@ def _score(exp_path: str, target: str, mesh, seed: int) -> float:
 
     exp = load_experiment(exp_path)
     eye = H._input_cameras(exp, 1)[0].eye
-    s = align_scale(mesh, H.load_target(exp_path, target).mesh, eye, seed=seed).scale
-    pm = render_masks(scale_about(mesh, eye, s), H._heldout_cameras(exp))
+    if views == 1:
+        mesh = scale_about(mesh, eye, align_scale(mesh, H.load_target(exp_path, target).mesh, eye, seed=seed).scale)
+    pm = render_masks(mesh, H._heldout_cameras(exp))
     tm = H.target_masks(exp_path, target, None)
     return float(np.mean([mask_iou(a, b) for a, b in zip(pm, tm)]))
 
@@ -94,11 +99,12 @@ def _refine(prob, x: torch.Tensor, d: dict, steps: int, lr: float) -> torch.Tens
         return adam(ev, x, d, steps, lr, mask=prob.pose_mask)[0]
 
 
-def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0, budget: int | None = None) -> dict:
+def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0, budget: int | None = None,
+             views: int = 1, against: tuple[str, int] = ("ipm-bound", 8)) -> dict:
     from ipm.optim.problem import Problem
 
-    r1, p1, b1, t1 = _fit(exp_path, target, "ipm", 1, seed, budget)
-    r8, p8, b8, t8 = _fit(exp_path, target, "ipm-bound", 8, seed)
+    r1, p1, b1, t1 = _fit(exp_path, target, "ipm", views, seed, budget)
+    r8, p8, b8, t8 = _fit(exp_path, target, against[0], against[1], seed)
     x1, d1 = b1["x"], b1["discrete"]
     # the 8-view point in the terms of the K = 1 objective: the same problem, but with its sizes per count held for
     # the 8-view answer's counts (Problem.carry: held for the K = 1 fit's, counts too far from those are squeezed)
@@ -110,49 +116,64 @@ def diagnose(exp_path: str, target: str, steps: int, lr: float, seed: int = 0, b
     for name, prob, x, d in (("x1", p1, x1, d1), ("x8", q1, x8, d8), ("x8r", q1, x8r, d8)):
         loss, iou = _loss(prob, x, d)
         mesh = prob.mesh_world(x.to(torch.float64), d).detach()
-        row[name] = {"loss": loss, "input_iou": iou, "heldout_iou": _score(exp_path, target, mesh, seed)}
+        row[name] = {"loss": loss, "input_iou": iou, "heldout_iou": _score(exp_path, target, mesh, seed, views)}
     return row
 
 
-def _table(rows: list[dict], steps: int, lr: float, exp_path: str, budget: int | None = None) -> str:
-    k1 = f"; the K = 1 fit at {budget} evaluations" if budget else ""
-    out = [f"# Single-view ambiguity ({exp_path}, seed 0; x8 refined {steps} Adam steps at lr {lr}{k1})", "",
-           "K = 1 objective (soft-IoU loss, the fit's final blur, its priors) and hard input-view IoU, with the",
-           "held-out IoU as a K = 1 cell is scored. x1: the K = 1 fit; x8: the 8-view fit; x8r: x8 refined on",
-           "the K = 1 objective alone. `search missed` when x8 or x8r has a lower K = 1 loss than x1: a better",
+def _table(rows: list[dict], steps: int, lr: float, exp_path: str, budget: int | None = None, views: int = 1,
+           against: tuple[str, int] = ("ipm-bound", 8)) -> str:
+    k, r = views, against[1]
+    kv = "K = 1" if k == 1 else f"K = {k}"
+    ref = f"the {r}-view fit" + ("" if against[0] == "ipm-bound" else f" (method {against[0]})")
+    title = "Single-view ambiguity" if k == 1 else f"{k} views against {r}"
+    k1 = f"; the {kv} fit at {budget} evaluations" if budget else ""
+    where = "the single-view objective" if k == 1 else f"the {k}-view objective"
+    out = [f"# {title} ({exp_path}, seed 0; x{r} refined {steps} Adam steps at lr {lr}{k1})", "",
+           f"{kv} objective (soft-IoU loss, the fit's final blur, its priors) and hard input-view IoU, with the",
+           f"held-out IoU as a {kv} cell is scored. x{k}: the {kv} fit; x{r}: {ref}; x{r}r: x{r} refined on",
+           f"the {kv} objective alone. `search missed` when x{r} or x{r}r has a lower {kv} loss than x{k}: a better",
            "point of the fit's own objective exists, which the search did not find; `prefers wrong` when",
-           "neither has: near the 8-view answer the single-view objective is higher than at x1.", "",
-           "| target | x1 loss | x1 input IoU | x1 held-out | x8 loss | x8 input IoU | x8 held-out | "
-           "x8r loss | x8r held-out | verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        a, b, c = r["x1"], r["x8"], r["x8r"]
-        # x8r is a point of the K = 1 objective's basin around the 8-view answer
+           f"neither has: near the {r}-view answer {where} is higher than at x{k}.", "",
+           f"| target | x{k} loss | x{k} input IoU | x{k} held-out | x{r} loss | x{r} input IoU | x{r} held-out | "
+           f"x{r}r loss | x{r}r held-out | verdict |", "|---|---|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        a, b, c = row["x1"], row["x8"], row["x8r"]
+        # x8r is a point of the K-view objective's basin around the reference answer
         wrong = min(b["loss"], c["loss"]) >= a["loss"]
         verdict = "prefers wrong" if wrong else "search missed"
-        out.append(f"| {r['target']} | {a['loss']:.4f} | {a['input_iou']:.3f} | {a['heldout_iou']:.3f} | "
+        out.append(f"| {row['target']} | {a['loss']:.4f} | {a['input_iou']:.3f} | {a['heldout_iou']:.3f} | "
                    f"{b['loss']:.4f} | {b['input_iou']:.3f} | {b['heldout_iou']:.3f} | {c['loss']:.4f} | "
                    f"{c['heldout_iou']:.3f} | {verdict} |")
-    out += ["", "Discrete values (x1 / x8):", ""]
-    out += [f"- {r['target']}: {r['discrete_1']} / {r['discrete_8']}" for r in rows]
+    out += ["", f"Discrete values (x{k} / x{r}):", ""]
+    out += [f"- {row['target']}: {row['discrete_1']} / {row['discrete_8']}" for row in rows]
     return "\n".join(out) + "\n"
+
+
+def _against(text: str) -> tuple[str, int]:
+    method, _, views = text.rpartition(":")
+    if not method or not views.isdigit() or int(views) < 1:
+        raise argparse.ArgumentTypeError(f"expected METHOD:VIEWS (e.g. ipm-bound:8, ipm:2), got {text!r}")
+    return method, int(views)
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m benchmarks.ambiguity", description=__doc__.split("\n")[0])
     ap.add_argument("targets", nargs="+")
     ap.add_argument("--experiment", default="experiments/table_coverage.toml")
+    ap.add_argument("--views", type=int, default=1, help="the diagnosed fit's view count (method ipm)")
+    ap.add_argument("--against", type=_against, default=("ipm-bound", 8), help="the reference fit, METHOD:VIEWS")
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--lr", type=float, default=0.003)
-    ap.add_argument("--budget", type=int, default=None, help="the K = 1 fit's budget (default: the experiment's)")
+    ap.add_argument("--budget", type=int, default=None, help="the diagnosed fit's budget (default: the experiment's)")
     ap.add_argument("-o", "--out", default="results/ambiguity.md")
     a = ap.parse_args(argv)
     torch.set_num_threads(1)
     rows = []
     for t in a.targets:
-        rows.append(diagnose(a.experiment, t, a.steps, a.lr, budget=a.budget))
+        rows.append(diagnose(a.experiment, t, a.steps, a.lr, budget=a.budget, views=a.views, against=a.against))
         r = rows[-1]
-        print(f"{t}: x1 {r['x1']}  x8 {r['x8']}  x8r {r['x8r']}", flush=True)
-    write_text(Path(a.out), _table(rows, a.steps, a.lr, a.experiment, a.budget))
+        print(f"{t}: x{a.views} {r['x1']}  x{a.against[1]} {r['x8']}  x{a.against[1]}r {r['x8r']}", flush=True)
+    write_text(Path(a.out), _table(rows, a.steps, a.lr, a.experiment, a.budget, a.views, a.against))
     print(f"wrote {a.out}")
     return 0
 
