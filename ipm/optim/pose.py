@@ -19,9 +19,9 @@ YAWS = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
 # grid, since a part's cues are narrow (a mug handle pointing at the camera, under depth: the loss 0.08
 # at the true azimuth, 0.41 and 0.43 at 30 degrees either side, 0.28 with the handle behind the body)
 TURNS = tuple(15.0 * k for k in range(24))
-# camera fit: (elevation, distance, FOV) of the grid
 # the largest share of a fit's budget that the start variants' pose grids may take (variant_starts)
 VARIANT_SHARE = 0.1
+# camera fit: (elevation, distance, FOV) of the grid
 CAMERA_GRID = tuple((e, 3.2, f) for e in (5.0, 25.0, 45.0) for f in (25.0, 40.0, 60.0))
 
 
@@ -59,6 +59,7 @@ def initial_starts(prob: Problem, ev: Evaluator, keep: int = 4, rank: bool = Fal
     presets = proposed(prob, proposals, starts[0][0]) + preset_starts(prob, starts[0][0])
     return (starts, rank_presets(prob, ev, presets, learned=len(proposals)) if rank else presets,
             yaw_free(graded))
+
 
 def variant_starts(prob: Problem, ev: Evaluator, x_best: torch.Tensor) -> list[tuple[torch.Tensor, dict]]:
     """What a fit with nothing discrete to search refines beside its best starts (the multistart of ``none``, which
