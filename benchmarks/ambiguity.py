@@ -19,7 +19,8 @@ reference (``--views 4 --against ipm:2``) it asks why a fit from more views ends
 
 Usage: ``python -m benchmarks.ambiguity [--experiment TOML] [--views K] [--against METHOD:VIEWS] [--steps N]
 [--budget N] [-o OUT.md] TARGET ...`` (``make bench-ambiguity`` runs the four targets that missed the bar in
-results/table_coverage; ``make bench-ambiguity-views`` the tune vessels that fit worse from four views than two).
+results/table_coverage; ``make bench-ambiguity-views`` the tune vessels at four views against two and the tune
+buildings at two against four).
 """
 
 from __future__ import annotations

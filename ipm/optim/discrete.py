@@ -33,8 +33,9 @@ class Space:
 
     m: length of the normalized continuous vector; gen: indices of the generator's coordinates (the
     rest is pose and camera); discrete: the searched discrete parameters; starts: (x, discrete)
-    starting poses, best first; presets: the generator's presets posed like the best start (with nothing discrete
-    searched: its start variants, which the multistart of ``none`` refines beside the starts).
+    starting poses, best first; presets: the generator's presets posed like the best start; variants: with nothing
+    discrete to search, the generator's start variants, each posed (:func:`ipm.optim.pose.variant_starts`), which the
+    multistart of ``none`` refines beside the starts.
     """
 
     m: int
@@ -43,6 +44,7 @@ class Space:
     starts: list[tuple[torch.Tensor, dict]]
     fixed_discrete: dict = field(default_factory=dict)
     presets: list[tuple[torch.Tensor, dict]] = field(default_factory=list)
+    variants: list[tuple[torch.Tensor, dict]] = field(default_factory=list)
     # (x, discrete) -> x posed anew for these discrete values; set when the starts' poses cannot tell
     pose_search: Callable[[torch.Tensor, dict], torch.Tensor] | None = None
     # (x, discrete) -> x with the outline refit for these discrete values, before part labels judge

@@ -170,7 +170,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     nlopt.srand(settings.seed)  # GN_CRS2_LM, GN_ESCH and GN_ISRES are stochastic
 
     ev = Evaluator(prob.objective, settings.budget, sink=sink, replay=replay, progress=progress)
-    starts, presets, free_yaw, start_info = _starts(prob, ev, settings, proposals)
+    starts, presets, variants, free_yaw, start_info = _starts(prob, ev, settings, proposals)
     searched = {p.name for p in prob.searched}
 
     def pose_search(x: torch.Tensor, d: dict) -> torch.Tensor:
@@ -186,7 +186,7 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     space = D.Space(prob.m, np.asarray(prob.coarse, dtype=np.int64), list(prob.searched), starts,
                     fixed_discrete={k: v for k, v in prob.d0.items() if k not in searched},
                     presets=[(x, prob.clamp_discrete({**prob.d0, **{k: v for k, v in d.items() if k in searched}}))
-                             for x, d in presets],
+                             for x, d in presets], variants=variants,
                     pose_search=pose_search if free_yaw and not prob.cam_fit else None)
 
     lr = fit_lr(gen, target, settings)
@@ -241,8 +241,10 @@ def run_fit(gen, target: MaskTarget | MeshTarget, settings: FitSettings, *, sink
     return dataclasses.replace(result, start=start_info), prob, best
 
 
-def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list) -> tuple[list, list, bool, dict]:
-    """Where the search starts: (starts, presets, whether the yaw is free, what result.json says of it), from the
+def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list
+            ) -> tuple[list, list, list, bool, dict]:
+    """Where the search starts: (starts, presets, start variants (with nothing discrete to search:
+    :func:`variant_starts`), whether the yaw is free, what result.json says of it), from the
     pose grid and the presets, the learned ``proposals`` (:func:`learned_proposals`), or both
     (:func:`init_mode`)."""
     init = init_mode(prob.gen, settings)
@@ -260,12 +262,12 @@ def _starts(prob: Problem, ev: Evaluator, settings: FitSettings, proposals: list
             starts, presets, free_yaw = learned_starts(prob, ev, proposals)
         else:
             starts, presets, free_yaw = initial_starts(prob, ev, rank=rank, proposals=proposals)
-        if not prob.searched:  # the multistart of "none" refines the start variants beside its best starts
-            presets = variant_starts(prob, ev, starts[0][0])
+        # the multistart of "none" refines them beside its best starts
+        variants = [] if prob.searched else variant_starts(prob, ev, starts[0][0])
     except BudgetExhausted:
-        starts, free_yaw = [(prob.x0(), dict(prob.d0))], False
-        presets = preset_starts(prob, starts[0][0], others=bool(prob.searched))
-    return starts, presets, free_yaw, info
+        starts, free_yaw, variants = [(prob.x0(), dict(prob.d0))], False, []
+        presets = preset_starts(prob, starts[0][0])
+    return starts, presets, variants, free_yaw, info
 
 
 def _finish(prob: Problem, ev: Evaluator, gen, starts, settings: FitSettings, n_tie: int, lr: float

@@ -13,11 +13,11 @@ from ipm.optim.strategies import STRATEGIES
 @STRATEGIES.register("none")
 def multistart(ev: Evaluator, space: Space, refine: Refine, rng: np.random.Generator, settings=None,
                starts: int = 3) -> None:
-    """Discrete values fixed: refine the best few starts and the generator's start variants (``space.presets`` when
-    nothing is searched: :func:`ipm.optim.pose.variant_starts`), then continue the best one. The variants are
+    """Discrete values fixed: refine the best few starts and the generator's start variants (``space.variants``:
+    :func:`ipm.optim.pose.variant_starts`), then continue the best one. The variants are
     refined, not ranked: one look does not tell them (a stool seen from one view looks more like the chair tree's
     chair than its backless variant, and refines to a far worse loss)."""
-    chosen = space.starts[:starts] + space.presets
+    chosen = space.starts[:starts] + space.variants
     share = max(10, ev.remaining // (2 * max(len(chosen), 1)))
     results = []
     try:
