@@ -84,7 +84,7 @@ table-init: $(STAMP) ## K = 1 fits started from the presets, the learned proposa
 bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
 	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
 
-bench-ambiguity-views: $(STAMP) ## do tune fits miss what other view counts found? vessels at 4 views against 2, buildings at 2 against 4: results/ambiguity_views*.md (6 and 14 minutes)
+bench-ambiguity-views: $(STAMP) ## do tune fits miss what other view counts found? vessels at 4 views against 2, buildings at 2 against 4: results/ambiguity_views*.md (5 and 4 minutes side by side, one thread each)
 	$(BIN)/python -m benchmarks.ambiguity cup_1 cup_2 bowl plate pitcher teapot bottle vase sugar_bowl plate_round --experiment experiments/table1.toml --views 4 --against ipm:2 -o results/ambiguity_views.md
 	$(BIN)/python -m benchmarks.ambiguity building building_2 building_3 building_4 building_5 building_6 munich_2869646 munich_2869655 munich_2870516 --experiment experiments/table1.toml --views 2 --against ipm:4 -o results/ambiguity_views_buildings.md
 
