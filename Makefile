@@ -81,15 +81,17 @@ table-proposals: $(STAMP) ## the proposal networks alone on held-out generator s
 table-init: $(STAMP) ## K = 1 fits started from the presets, the learned proposals or both, results/table_init/
 	$(call run_bench,table_init,table_init)
 
-bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? results/ambiguity.md (about 5 minutes)
-	$(BIN)/python -m benchmarks.ambiguity building building_5 building_6 teapot -o results/ambiguity.md
+bench-ambiguity: $(STAMP) ## is a weak K = 1 cell the search's or the view's? every tune target of table_coverage: results/ambiguity.md (buildings) and ambiguity_vessels.md (6 and 10 minutes side by side, one thread each)
+	$(BIN)/python -m benchmarks.ambiguity building building_2 building_3 building_4 building_5 building_6 -o results/ambiguity.md
+	$(BIN)/python -m benchmarks.ambiguity cup_1 cup_2 bowl plate pitcher teapot bottle vase -o results/ambiguity_vessels.md
 
 bench-ambiguity-views: $(STAMP) ## do tune fits miss what other view counts found? vessels at 4 views against 2, buildings at 2 against 4: results/ambiguity_views*.md (5 and 4 minutes side by side, one thread each)
 	$(BIN)/python -m benchmarks.ambiguity cup_1 cup_2 bowl plate pitcher teapot bottle vase sugar_bowl plate_round --experiment experiments/table1.toml --views 4 --against ipm:2 -o results/ambiguity_views.md
 	$(BIN)/python -m benchmarks.ambiguity building building_2 building_3 building_4 building_5 building_6 munich_2869646 munich_2869655 munich_2870516 --experiment experiments/table1.toml --views 2 --against ipm:4 -o results/ambiguity_views_buildings.md
 
-bench-ambiguity-validation: $(STAMP) ## the same for the validation split's weakest K = 1 cells, results/ambiguity_validation.md (12 minutes beside a two-worker bench)
-	$(BIN)/python -m benchmarks.ambiguity mustard saucer teaset_teapot montreal_energy munich_2869664 munich_2869678 --experiment experiments/coverage_validation.toml -o results/ambiguity_validation.md
+bench-ambiguity-validation: $(STAMP) ## the same for every K = 1 cell of the validation split's vessels and buildings: results/ambiguity_validation.md and ambiguity_validation_buildings.md (15 and 10 minutes side by side, one thread each)
+	$(BIN)/python -m benchmarks.ambiguity coffee_can evo_bowl mug_lowpoly mustard plate_8in plate_square saucer shallow_bowl teaset_cup teaset_teapot tumbler --experiment experiments/coverage_validation.toml -o results/ambiguity_validation.md
+	$(BIN)/python -m benchmarks.ambiguity montreal_326de407 montreal_bce4a7a6 montreal_energy munich_2869644 munich_2869645 munich_2869664 munich_2869678 munich_2869708 storey_3 --experiment experiments/coverage_validation.toml -o results/ambiguity_validation_buildings.md
 
 table-subdiv: $(STAMP) ## subdivision table: decimated closed meshes, midpoint / Loop / neural, results/table_subdiv/ (about 15 minutes: it trains 10 networks)
 	$(BIN)/python -m benchmarks.table_subdiv results/table_subdiv
