@@ -15,11 +15,14 @@ scored as the bench scores a K-view cell (at K = 1 scaled about the input camera
 held-out views). If the input-view loss of ``x8`` is *higher* than that of ``x1`` while its held-out IoU is far
 higher, the K-view objective prefers the wrong shape: no search on it can land, only a prior (or more views) can.
 If ``x8`` has a lower loss than ``x1``, or ``x8r`` than ``x1r``, the search did not find it. With fewer views in the
-reference (``--views 4 --against ipm:2``) it asks why a fit from more views ends worse than one from fewer.
+reference (``--views 4 --against ipm:2``) it asks why a fit from more views ends worse than one from fewer. The
+table ends with the targets' mean held-out IoU of ``x1``, of ``x8`` and of the lower-loss of ``x1r`` and ``x8r``:
+where a search that found the best point of the fit's own objective known here would end.
 
 Usage: ``python -m benchmarks.ambiguity [--experiment TOML] [--views K] [--against METHOD:VIEWS] [--steps N]
-[--budget N] [-o OUT.md] TARGET ...`` (``make bench-ambiguity`` runs the four targets that missed the bar in
-results/table_coverage; ``make bench-ambiguity-views`` the tune vessels at four views against two and the tune
+[--budget N] [-o OUT.md] TARGET ...`` (``make bench-ambiguity`` runs every tune building and vessel of
+results/table_coverage, ``make bench-ambiguity-validation`` every validation vessel and building of
+results/coverage_validation; ``make bench-ambiguity-views`` the tune vessels at four views against two and the tune
 buildings at two against four).
 """
 
